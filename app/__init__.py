@@ -1,0 +1,1 @@
+"""dsteleop.app."""

@@ -1,0 +1,116 @@
+"""Expected control allocation, eq (3)-(5), and the willingness B of eq (6)-(8).
+
+Standard controller (S), eq (3), one alpha for every dimension from position only:
+
+    alpha = 1 - erf(|p_goal - p_cur|_1 / max(|p_goal - p_start|_1, eps))
+
+Expected control allocation of agent A in {H: X_human, R: X_current}, eq (4) and (5):
+
+    translation, fingers:  P(A_i) = 1 - erf(|goal_i - agent_i| / max(|goal_i - start_i|, eps_i))
+    rotation:              P(A_i) = exp(kappa * (cos(e_i) - 1)),  e = log(R_goal R_agent^T)
+
+(the von Mises density of eq (5) divided by its peak, so P is in (0, 1] and 1 at the goal).
+
+Expected speed change, eq (6), per agent and dimension, unitless:
+
+    psi_i = U_i / vmax_i - u(cur, prev)_i - u(cur, start)_i + mean_n u(terminal_n, start_n)_i
+
+with u(a, b) = diff(a, b) / |diff(a, b)|_2 over the dimension's group (translation, rotation,
+fingers) and 0 when that norm is below the group's eps. The states are the agent's own.
+
+Willingness, eq (7): the beta-prime density with shapes p, q and scale
+sigma = b * r * (q - 1) / p, whose mean is b * r, evaluated at |psi_human| and divided by its
+value at the mode x_m = sigma * (p - 1) / (q + 1), so B is in [0, 1] and 1 at the mode:
+
+    B = (x / x_m)^(p - 1) * ((1 + x_m / sigma) / (1 + x / sigma))^(p + q)
+
+The reference is r = max(|psi_robot|, psi_robot_floor): where the robot expects no speed change
+the density would collapse onto 0; the floor keeps B finite and makes an operator who holds
+still unwilling (B -> 0), which hands control back to them.
+
+Dimension-specific alpha, eq (8): alpha_i = clip((P(R_i) - P(H_i)) * B_i + P(H_i), 0, 1).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.special import erf
+
+from dsteleop.arbitration.se3 import FING, ROT, TRANS
+
+Array = NDArray[np.float64]
+
+
+def standard_alpha(p_goal: Array, p_cur: Array, p_start: Array, eps_m: float) -> Array:
+    """Eq (3): one alpha per state from the L1 position distances, shape (...)."""
+    num = np.abs(p_goal - p_cur).sum(-1)
+    den = np.maximum(np.abs(p_goal - p_start).sum(-1), eps_m)
+    return np.asarray(1.0 - erf(num / den))
+
+
+def expected_allocation(
+    d_goal_agent: Array, d_goal_start: Array, eps: Array, kappa: float
+) -> Array:
+    """Eq (4)/(5): P(A_i) for every dimension, (..., 6 + F).
+
+    Args:
+        d_goal_agent: diff(X_goal, X_agent), (..., 6 + F).
+        d_goal_start: diff(X_goal, X_start); its rotation entries are not used.
+        eps: (6 + F,) floors of the denominators.
+        kappa: von Mises concentration.
+    """
+    out = np.empty_like(d_goal_agent)
+    lin = np.r_[0, 1, 2, np.arange(6, d_goal_agent.shape[-1])]
+    den = np.maximum(np.abs(d_goal_start[..., lin]), eps[lin])
+    out[..., lin] = 1.0 - erf(np.abs(d_goal_agent[..., lin]) / den)
+    out[..., ROT] = np.exp(kappa * (np.cos(d_goal_agent[..., ROT]) - 1.0))
+    return out
+
+
+def unit_directions(d: Array, eps: Array) -> Array:
+    """u(a, b) of eq (6) from d = diff(a, b): each group divided by its norm, 0 below eps."""
+    out = np.zeros_like(d)
+    for group in (TRANS, ROT, FING):
+        g = d[..., group]
+        if g.shape[-1] == 0:
+            continue
+        n = np.linalg.norm(g, axis=-1, keepdims=True)
+        ok = n >= eps[group][0]
+        out[..., group] = np.where(ok, g / np.where(ok, n, 1.0), 0.0)
+    return out
+
+
+def expected_speed_change(
+    U: Array,
+    v_max: Array,
+    d_cur_prev: Array,
+    d_cur_start: Array,
+    history_term: Array,
+    eps: Array,
+) -> Array:
+    """Eq (6): psi for one agent, (..., 6 + F)."""
+    return (
+        U / v_max
+        - unit_directions(d_cur_prev, eps)
+        - unit_directions(d_cur_start, eps)
+        + history_term
+    )
+
+
+def willingness(
+    psi_human: Array, psi_robot: Array, p: float, q: float, b: float, floor: float
+) -> Array:
+    """Eq (7): B in [0, 1], the beta-prime density at |psi_human| normalised at its mode."""
+    r = np.maximum(np.abs(psi_robot), floor)
+    sigma = b * r * (q - 1.0) / p
+    z = np.abs(psi_human) / sigma
+    zm = (p - 1.0) / (q + 1.0)
+    with np.errstate(divide="ignore"):
+        log_b = (p - 1.0) * (np.log(z) - np.log(zm)) + (p + q) * (np.log1p(zm) - np.log1p(z))
+    return np.asarray(np.exp(log_b))
+
+
+def ds_alpha(P_robot: Array, P_human: Array, B: Array) -> Array:
+    """Eq (8): alpha_i = clip((P(R_i) - P(H_i)) * B_i + P(H_i), 0, 1)."""
+    return np.asarray(np.clip((P_robot - P_human) * B + P_human, 0.0, 1.0))

@@ -1,0 +1,106 @@
+"""All arbitration hyper-parameters in one frozen, validated, JSON-round-trippable object.
+
+Defaults (and why):
+    kappa = 4.0       von Mises concentration of eq (5): P(R) falls to 0.5 at ~34 deg off the
+                      goal and to ~0.02 at 90 deg.
+    p, q = 4.0, 6.0   beta-prime shapes of eq (7): B peaks at 0.54 * b * |psi_robot| and falls
+                      to ~0.1 at 3x that.
+    b = 1.0           |psi_human| whose density mean sits at b * |psi_robot|.
+    window = 5        moving-average window (ticks) on alpha_i and B_i (paper limitation 2).
+    gains             K_r of the goal-seeking policy U_robot = sat(K_r * diff(goal, current)).
+    limits            velocity saturation: translation by norm [m/s], rotation by norm [rad/s],
+                      each finger alone [1/s].
+    eps               floors of the eq (3)/(4) denominators and of the unit directions of eq (6).
+    psi_robot_floor   the |psi_robot| ~ 0 rule of eq (7): the beta-prime reference is
+                      max(|psi_robot|, psi_robot_floor), so B stays finite and an operator who
+                      is not changing speed while the robot is not either gets B ~ 0.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+class InvalidConfig(ValueError):
+    """A hyper-parameter is out of its domain; the message names it."""
+
+
+@dataclass(frozen=True)
+class ArbitrationConfig:
+    """Hyper-parameters of the arbitration (see module docstring for the defaults)."""
+
+    kappa: float = 4.0
+    p: float = 4.0
+    q: float = 6.0
+    b: float = 1.0
+    window: int = 5
+    k_trans_per_s: float = 2.0
+    k_rot_per_s: float = 2.0
+    k_finger_per_s: float = 2.0
+    v_max_mps: float = 0.25
+    w_max_radps: float = 1.0
+    g_max_per_s: float = 1.5
+    eps_trans_m: float = 1e-3
+    eps_rot_rad: float = 1e-3
+    eps_finger: float = 1e-3
+    psi_robot_floor: float = 0.05
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise InvalidConfig(f"{f.name} must be a number, got {value!r}")
+            if not math.isfinite(value) or value <= 0:
+                raise InvalidConfig(f"{f.name} must be finite and > 0, got {value!r}")
+        if self.p <= 1.0:
+            raise InvalidConfig(f"p must be > 1 (beta prime needs a mode), got {self.p!r}")
+        if self.q <= 1.0:
+            raise InvalidConfig(f"q must be > 1 (beta prime needs a mean), got {self.q!r}")
+        if not isinstance(self.window, int):
+            raise InvalidConfig(f"window must be an integer >= 1, got {self.window!r}")
+
+    def replace(self, **changes: Any) -> ArbitrationConfig:
+        """A copy with some fields changed (validated)."""
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> ArbitrationConfig:
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - names)
+        if unknown:
+            raise InvalidConfig(f"unknown arbitration parameter(s): {', '.join(unknown)}")
+        return cls(**data)
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> ArbitrationConfig:
+        data = json.loads(text)
+        if not isinstance(data, dict):
+            raise InvalidConfig("arbitration config JSON must be an object")
+        return cls.from_dict(data)
+
+    # Per-dimension vectors, for D = 6 + n_fingers dimensions.
+    def gains(self, n_fingers: int) -> NDArray[np.float64]:
+        return _per_dim(self.k_trans_per_s, self.k_rot_per_s, self.k_finger_per_s, n_fingers)
+
+    def v_max(self, n_fingers: int) -> NDArray[np.float64]:
+        return _per_dim(self.v_max_mps, self.w_max_radps, self.g_max_per_s, n_fingers)
+
+    def eps(self, n_fingers: int) -> NDArray[np.float64]:
+        return _per_dim(self.eps_trans_m, self.eps_rot_rad, self.eps_finger, n_fingers)
+
+
+def _per_dim(trans: float, rot: float, finger: float, n_fingers: int) -> NDArray[np.float64]:
+    return np.concatenate([np.full(3, trans), np.full(3, rot), np.full(n_fingers, finger)])
