@@ -58,7 +58,11 @@ case "$cmd" in
         sync ;;
     start)
         sync
-        exec .venv/bin/dsteleop serve "$@" ;;
+        if .venv/bin/python -c 'import sys; from dsteleop.app.cli import COMMANDS; sys.exit("serve" not in COMMANDS)'; then
+            exec .venv/bin/dsteleop serve "$@"
+        fi
+        echo "dev.sh: the browser app (dsteleop serve) is not built yet; here is what the CLI offers:" >&2
+        exec .venv/bin/dsteleop --help ;;
     test)
         sync
         "$TOOLS/bin/uv" pip check --python .venv/bin/python

@@ -10,11 +10,13 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import os
 import platform
 import sys
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from dsteleop.errors import DsteleopError
 
@@ -26,12 +28,15 @@ GROUPS: dict[str, str] = {
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--only", action="append", metavar="NAME", help=f"run only these groups: {', '.join(GROUPS)}"
+        "--only",
+        action="append",
+        metavar="NAME",
+        help=f"run only these groups: {', '.join(GROUPS)}",
     )
     parser.add_argument("--quick", action="store_true", help="fewer repetitions (smoke run)")
 
 
-def percentiles_us(samples_s: list[float] | np.ndarray) -> dict[str, float]:
+def percentiles_us(samples_s: list[float] | NDArray[np.float64]) -> dict[str, float]:
     """median, p95, p99 of durations given in seconds, in microseconds."""
     a = np.asarray(samples_s, dtype=np.float64) * 1e6
     return {
@@ -43,8 +48,6 @@ def percentiles_us(samples_s: list[float] | np.ndarray) -> dict[str, float]:
 
 
 def machine() -> dict[str, Any]:
-    import os
-
     return {
         "python": platform.python_version(),
         "cpu": platform.processor() or platform.machine(),

@@ -15,9 +15,9 @@ Conventions (written down once):
 
 from dsteleop.arbitration.arbiters import (
     ARBITERS,
+    Arbiter,
     ArbitrationInput,
     ArbitrationStep,
-    Arbiter,
     Autonomous,
     DimensionSpecific,
     Manual,
@@ -29,8 +29,8 @@ from dsteleop.arbitration.config import ArbitrationConfig, InvalidConfig
 from dsteleop.arbitration.history import OperatorHistory
 from dsteleop.arbitration.se3 import (
     HandState,
-    dim_names,
     diff,
+    dim_names,
     integrate,
     saturate,
     so3_exp,

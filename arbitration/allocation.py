@@ -37,7 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import erf
 
-from dsteleop.arbitration.se3 import FING, ROT, TRANS
+from dsteleop.arbitration.se3 import ROT, group_norms
 
 Array = NDArray[np.float64]
 
@@ -60,25 +60,20 @@ def expected_allocation(
         eps: (6 + F,) floors of the denominators.
         kappa: von Mises concentration.
     """
-    out = np.empty_like(d_goal_agent)
-    lin = np.r_[0, 1, 2, np.arange(6, d_goal_agent.shape[-1])]
-    den = np.maximum(np.abs(d_goal_start[..., lin]), eps[lin])
-    out[..., lin] = 1.0 - erf(np.abs(d_goal_agent[..., lin]) / den)
-    out[..., ROT] = np.exp(kappa * (np.cos(d_goal_agent[..., ROT]) - 1.0))
-    return out
+    linear = 1.0 - erf(np.abs(d_goal_agent) / np.maximum(np.abs(d_goal_start), eps))
+    linear[..., ROT] = np.exp(kappa * (np.cos(d_goal_agent[..., ROT]) - 1.0))
+    return np.asarray(linear)
 
 
 def unit_directions(d: Array, eps: Array) -> Array:
     """u(a, b) of eq (6) from d = diff(a, b): each group divided by its norm, 0 below eps."""
-    out = np.zeros_like(d)
-    for group in (TRANS, ROT, FING):
-        g = d[..., group]
-        if g.shape[-1] == 0:
-            continue
-        n = np.linalg.norm(g, axis=-1, keepdims=True)
-        ok = n >= eps[group][0]
-        out[..., group] = np.where(ok, g / np.where(ok, n, 1.0), 0.0)
-    return out
+    n = group_norms(d)[..., _GROUP_OF_DIM[: d.shape[-1]]]
+    ok = n >= eps
+    return np.asarray(np.where(ok, d / np.where(ok, n, 1.0), 0.0))
+
+
+# Group index (0 translation, 1 rotation, 2 fingers) of each dimension; fingers repeat.
+_GROUP_OF_DIM = np.array([0, 0, 0, 1, 1, 1] + [2] * 64)
 
 
 def expected_speed_change(
@@ -90,7 +85,7 @@ def expected_speed_change(
     eps: Array,
 ) -> Array:
     """Eq (6): psi for one agent, (..., 6 + F)."""
-    return (
+    return np.asarray(
         U / v_max
         - unit_directions(d_cur_prev, eps)
         - unit_directions(d_cur_start, eps)
@@ -102,15 +97,14 @@ def willingness(
     psi_human: Array, psi_robot: Array, p: float, q: float, b: float, floor: float
 ) -> Array:
     """Eq (7): B in [0, 1], the beta-prime density at |psi_human| normalised at its mode."""
-    r = np.maximum(np.abs(psi_robot), floor)
-    sigma = b * r * (q - 1.0) / p
-    z = np.abs(psi_human) / sigma
+    sigma = np.maximum(np.abs(psi_robot), floor) * (b * (q - 1.0) / p)
+    # z = 0 gives B = 0 (p > 1); the floor keeps log finite and exp underflows to exactly 0.
+    z = np.maximum(np.abs(psi_human) / sigma, 1e-300)
     zm = (p - 1.0) / (q + 1.0)
-    with np.errstate(divide="ignore"):
-        log_b = (p - 1.0) * (np.log(z) - np.log(zm)) + (p + q) * (np.log1p(zm) - np.log1p(z))
+    log_b = (p - 1.0) * np.log(z * (1.0 / zm)) - (p + q) * np.log1p(z) + (p + q) * np.log1p(zm)
     return np.asarray(np.exp(log_b))
 
 
 def ds_alpha(P_robot: Array, P_human: Array, B: Array) -> Array:
     """Eq (8): alpha_i = clip((P(R_i) - P(H_i)) * B_i + P(H_i), 0, 1)."""
-    return np.asarray(np.clip((P_robot - P_human) * B + P_human, 0.0, 1.0))
+    return np.asarray(np.minimum(np.maximum((P_robot - P_human) * B + P_human, 0.0), 1.0))

@@ -19,17 +19,19 @@ All arrays may carry a leading batch axis; the DS filter state then has the same
 from __future__ import annotations
 
 import enum
+import functools
 from dataclasses import dataclass, field
 from typing import ClassVar, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
+from dsteleop.arbitration import scalar
 from dsteleop.arbitration.allocation import (
     ds_alpha,
     expected_allocation,
-    expected_speed_change,
     standard_alpha,
+    unit_directions,
     willingness,
 )
 from dsteleop.arbitration.config import ArbitrationConfig
@@ -124,47 +126,102 @@ class _Kernel:
     B_raw: Array
 
 
+@functools.lru_cache(maxsize=64)
+def _vectors(cfg: ArbitrationConfig, n_fingers: int) -> tuple[Array, Array, Array]:
+    """Per-dimension gains, velocity limits and eps (cached: built once per config)."""
+    return cfg.gains(n_fingers), cfg.v_max(n_fingers), cfg.eps(n_fingers)
+
+
+def _stack(arrays: list[Array]) -> Array:
+    """Stack on a new first axis, broadcasting batch shapes when they differ."""
+    if len({x.shape for x in arrays}) == 1:
+        return np.array(arrays)
+    return np.array(np.broadcast_arrays(*arrays))
+
+
+def _states(inp: ArbitrationInput) -> tuple[HandState, ...]:
+    return (
+        inp.X_human,
+        inp.X_human_prev,
+        inp.X_human_start,
+        inp.X_current,
+        inp.X_prev,
+        inp.X_start,
+        inp.X_goal,
+    )
+
+
+def _unbatched(inp: ArbitrationInput) -> bool:
+    return all(s.rotation.ndim == 2 and s.position.ndim == 1 for s in _states(inp))
+
+
 def _kernel(cfg: ArbitrationConfig, inp: ArbitrationInput) -> _Kernel:
     F = inp.X_current.n_fingers
-    v_max, eps = cfg.v_max(F), cfg.eps(F)
+    gains, v_max, eps = _vectors(cfg, F)
+    if _unbatched(inp):
+        hist = [0.0] * (6 + F) if inp.history_term is None else inp.history_term.tolist()
+        return _Kernel(
+            *map(
+                np.array,
+                scalar.kernel(
+                    _states(inp),
+                    gains.tolist(),
+                    v_max.tolist(),
+                    eps.tolist(),
+                    cfg.kappa,
+                    cfg.p,
+                    cfg.q,
+                    cfg.b,
+                    cfg.psi_robot_floor,
+                    inp.dt,
+                    hist,
+                ),
+            )
+        )
+    return _batched_kernel(cfg, inp, gains, v_max, eps)
+
+
+def _batched_kernel(
+    cfg: ArbitrationConfig, inp: ArbitrationInput, gains: Array, v_max: Array, eps: Array
+) -> _Kernel:
     H, Hp, Hs = inp.X_human, inp.X_human_prev, inp.X_human_start
     C, Cp, Cs, G = inp.X_current, inp.X_prev, inp.X_start, inp.X_goal
 
-    # All rotation differences of the tick in one batched logarithm.
-    pairs = ((G, C), (H, Hp), (G, H), (H, Hs), (C, Cp), (C, Cs))
-    A = np.stack([np.broadcast_to(a.rotation, _bshape(pairs)) for a, _ in pairs])
-    Bm = np.stack([np.broadcast_to(b.rotation, _bshape(pairs)) for _, b in pairs])
-    rot = so3_log(A @ np.swapaxes(Bm, -1, -2))
-
-    def d(i: int) -> Array:
-        a, b = pairs[i]
-        return np.concatenate([a.position - b.position, rot[i], a.openness - b.openness], -1)
-
-    d_goal_cur, d_h_hprev, d_goal_h, d_h_hstart, d_cur_prev, d_cur_start = (d(i) for i in range(6))
-    d_goal_start = np.concatenate(
-        [G.position - Cs.position, np.zeros_like(rot[0]), G.openness - Cs.openness], -1
+    # The six differences of the tick, stacked on a leading axis, one batched logarithm:
+    # 0 goal-cur, 1 hum-hum_prev, 2 goal-hum, 3 hum-hum_start, 4 cur-prev, 5 cur-start.
+    left = (G, H, G, H, C, C)
+    right = (C, Hp, H, Hs, Cp, Cs)
+    R_rel = _stack([s.rotation for s in left]) @ np.swapaxes(
+        _stack([s.rotation for s in right]), -1, -2
     )
+    rot = so3_log(R_rel)
+    pos = _stack([s.position for s in left]) - _stack([s.position for s in right])
+    opn = _stack([s.openness for s in left]) - _stack([s.openness for s in right])
+    d = np.concatenate([pos, rot, opn], -1)
+    # Only the translation and finger entries of goal - start are used (eq 4).
+    d_goal_start = np.concatenate([G.position - Cs.position, rot[0], G.openness - Cs.openness], -1)
 
-    U_robot = saturate(cfg.gains(F) * d_goal_cur, v_max)
-    U_human = saturate(d_h_hprev / inp.dt, v_max)
-    P_robot = expected_allocation(d_goal_cur, d_goal_start, eps, cfg.kappa)
-    P_human = expected_allocation(d_goal_h, d_goal_start, eps, cfg.kappa)
-    hist = np.zeros(6 + F) if inp.history_term is None else inp.history_term
-    psi_h = expected_speed_change(U_human, v_max, d_h_hprev, d_h_hstart, hist, eps)
-    psi_r = expected_speed_change(U_robot, v_max, d_cur_prev, d_cur_start, hist, eps)
-    B_raw = willingness(psi_h, psi_r, cfg.p, cfg.q, cfg.b, cfg.psi_robot_floor)
-    return _Kernel(U_human, U_robot, P_human, P_robot, psi_h, psi_r, B_raw)
+    # [U_robot, U_human] = sat([K_r * (goal - cur), (hum - hum_prev) / dt])
+    scale = np.array([gains, np.full_like(gains, 1.0 / inp.dt)])
+    scale = scale.reshape((2,) + (1,) * (d.ndim - 2) + (d.shape[-1],))
+    U = saturate(d[:2] * scale, v_max)
+    # [P(R), P(H)]: the goal measured from the robot and from the hand.
+    P = expected_allocation(d[0:3:2], d_goal_start, eps, cfg.kappa)
+    # [psi_robot, psi_human], each agent with its own previous and start states.
+    u = unit_directions(d[[4, 1, 5, 3]], eps)
+    hist = 0.0 if inp.history_term is None else inp.history_term
+    psi = U / v_max - u[:2] - u[2:] + hist
+    B_raw = willingness(psi[1], psi[0], cfg.p, cfg.q, cfg.b, cfg.psi_robot_floor)
+    return _Kernel(U[1], U[0], P[1], P[0], psi[1], psi[0], B_raw)
 
 
-def _bshape(pairs: tuple[tuple[HandState, HandState], ...]) -> tuple[int, ...]:
-    shapes = [s.rotation.shape for pair in pairs for s in pair]
-    return tuple(np.broadcast_shapes(*shapes))
-
-
-def _finish(
-    inp: ArbitrationInput, k: _Kernel, alpha: Array, B: Array
-) -> ArbitrationStep:
-    U_out = alpha * k.U_robot + (1.0 - alpha) * k.U_human
+def _finish(inp: ArbitrationInput, k: _Kernel, alpha: Array, B: Array) -> ArbitrationStep:
+    U_out = k.U_human + alpha * (k.U_robot - k.U_human)  # eq (1)
+    X = inp.X_current
+    if X.rotation.ndim == 2:
+        X_next = scalar.integrate(X, U_out.tolist(), inp.dt)
+    else:
+        X_next = integrate(X, U_out, inp.dt)  # eq (2)
     return ArbitrationStep(
         alpha=alpha,
         P_human=k.P_human,
@@ -175,7 +232,7 @@ def _finish(
         U_human=k.U_human,
         U_robot=k.U_robot,
         U_out=U_out,
-        X_next=integrate(inp.X_current, U_out, inp.dt),
+        X_next=X_next,
     )
 
 
@@ -187,7 +244,9 @@ class Arbiter(Protocol):
 
     def initial_state(self, dims: int, batch: tuple[int, ...] = ()) -> FilterState: ...
 
-    def step(self, state: FilterState, inp: ArbitrationInput) -> tuple[FilterState, ArbitrationStep]: ...
+    def step(
+        self, state: FilterState, inp: ArbitrationInput
+    ) -> tuple[FilterState, ArbitrationStep]: ...
 
 
 @dataclass(frozen=True)
@@ -205,7 +264,9 @@ class Manual(_Base):
 
     mode: ClassVar[Mode] = Mode.MANUAL
 
-    def step(self, state: FilterState, inp: ArbitrationInput) -> tuple[FilterState, ArbitrationStep]:
+    def step(
+        self, state: FilterState, inp: ArbitrationInput
+    ) -> tuple[FilterState, ArbitrationStep]:
         k = _kernel(self.config, inp)
         return state, _finish(inp, k, np.zeros_like(k.U_robot), k.B_raw)
 
@@ -216,7 +277,9 @@ class Autonomous(_Base):
 
     mode: ClassVar[Mode] = Mode.AUTONOMOUS
 
-    def step(self, state: FilterState, inp: ArbitrationInput) -> tuple[FilterState, ArbitrationStep]:
+    def step(
+        self, state: FilterState, inp: ArbitrationInput
+    ) -> tuple[FilterState, ArbitrationStep]:
         k = _kernel(self.config, inp)
         return state, _finish(inp, k, np.ones_like(k.U_robot), k.B_raw)
 
@@ -227,10 +290,15 @@ class Standard(_Base):
 
     mode: ClassVar[Mode] = Mode.S
 
-    def step(self, state: FilterState, inp: ArbitrationInput) -> tuple[FilterState, ArbitrationStep]:
+    def step(
+        self, state: FilterState, inp: ArbitrationInput
+    ) -> tuple[FilterState, ArbitrationStep]:
         k = _kernel(self.config, inp)
         a = standard_alpha(
-            inp.X_goal.position, inp.X_current.position, inp.X_start.position, self.config.eps_trans_m
+            inp.X_goal.position,
+            inp.X_current.position,
+            inp.X_start.position,
+            self.config.eps_trans_m,
         )
         alpha = np.broadcast_to(a[..., None], k.U_robot.shape).copy()
         return state, _finish(inp, k, alpha, k.B_raw)
@@ -242,13 +310,15 @@ class DimensionSpecific(_Base):
 
     mode: ClassVar[Mode] = Mode.DS
 
-    def step(self, state: FilterState, inp: ArbitrationInput) -> tuple[FilterState, ArbitrationStep]:
+    def step(
+        self, state: FilterState, inp: ArbitrationInput
+    ) -> tuple[FilterState, ArbitrationStep]:
         k = _kernel(self.config, inp)
         W = state.B_buf.shape[-2]
         slot = state.count % W
         B_buf = state.B_buf.copy()
         B_buf[..., slot, :] = k.B_raw
-        B = B_buf.mean(-2)
+        B = B_buf.sum(-2) * (1.0 / W)
         alpha_raw = ds_alpha(k.P_robot, k.P_human, B)
         alpha_buf = state.alpha_buf.copy()
         alpha_buf[..., slot, :] = alpha_raw

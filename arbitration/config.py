@@ -4,7 +4,7 @@ Defaults (and why):
     kappa = 4.0       von Mises concentration of eq (5): P(R) falls to 0.5 at ~34 deg off the
                       goal and to ~0.02 at 90 deg.
     p, q = 4.0, 6.0   beta-prime shapes of eq (7): B peaks at 0.54 * b * |psi_robot| and falls
-                      to ~0.1 at 3x that.
+                      to ~0.25 at 3x and ~0.1 at 4x that.
     b = 1.0           |psi_human| whose density mean sits at b * |psi_robot|.
     window = 5        moving-average window (ticks) on alpha_i and B_i (paper limitation 2).
     gains             K_r of the goal-seeking policy U_robot = sat(K_r * diff(goal, current)).
@@ -12,8 +12,9 @@ Defaults (and why):
                       each finger alone [1/s].
     eps               floors of the eq (3)/(4) denominators and of the unit directions of eq (6).
     psi_robot_floor   the |psi_robot| ~ 0 rule of eq (7): the beta-prime reference is
-                      max(|psi_robot|, psi_robot_floor), so B stays finite and an operator who
-                      is not changing speed while the robot is not either gets B ~ 0.
+                      max(|psi_robot|, psi_robot_floor) (0.25: a quarter of a unit direction,
+                      the scale of psi), so B stays finite, and an operator who is not changing
+                      speed while the robot is not either gets B ~ 0 (control goes to them).
 """
 
 from __future__ import annotations
@@ -50,7 +51,7 @@ class ArbitrationConfig:
     eps_trans_m: float = 1e-3
     eps_rot_rad: float = 1e-3
     eps_finger: float = 1e-3
-    psi_robot_floor: float = 0.05
+    psi_robot_floor: float = 0.25
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):

@@ -57,7 +57,9 @@ class OperatorHistory:
     def to_dict(self) -> dict[str, Any]:
         return {
             "schema": SCHEMA,
-            "attempts": [{"start": list(a.start), "terminal": list(a.terminal)} for a in self.attempts],
+            "attempts": [
+                {"start": list(a.start), "terminal": list(a.terminal)} for a in self.attempts
+            ],
         }
 
     @classmethod

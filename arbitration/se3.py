@@ -56,7 +56,10 @@ class HandState:
 
     @classmethod
     def from_rotvec(
-        cls, position: Array | list[float], rotvec: Array | list[float], openness: Array | list[float]
+        cls,
+        position: Array | list[float],
+        rotvec: Array | list[float],
+        openness: Array | list[float],
     ) -> HandState:
         """Build a state from a rotation vector [rad] instead of a matrix."""
         return cls(
@@ -79,61 +82,63 @@ class HandState:
 
 def hat(w: Array) -> Array:
     """Skew-symmetric matrix of w, (..., 3) -> (..., 3, 3)."""
-    z = np.zeros(w.shape[:-1])
-    return np.stack(
-        [
-            np.stack([z, -w[..., 2], w[..., 1]], -1),
-            np.stack([w[..., 2], z, -w[..., 0]], -1),
-            np.stack([-w[..., 1], w[..., 0], z], -1),
-        ],
-        -2,
-    )
+    K = np.zeros((*w.shape[:-1], 3, 3))
+    K[..., 0, 1] = -w[..., 2]
+    K[..., 0, 2] = w[..., 1]
+    K[..., 1, 0] = w[..., 2]
+    K[..., 1, 2] = -w[..., 0]
+    K[..., 2, 0] = -w[..., 1]
+    K[..., 2, 1] = w[..., 0]
+    return K
 
 
 def so3_exp(w: Array) -> Array:
     """Rotation matrix of a rotation vector (Rodrigues), (..., 3) -> (..., 3, 3)."""
     w = np.asarray(w, dtype=np.float64)
-    theta2 = np.einsum("...i,...i->...", w, w)
+    theta2 = (w * w).sum(-1)
     theta = np.sqrt(theta2)
     small = theta < 1e-4
     safe = np.where(small, 1.0, theta)
-    # sin(t)/t and (1 - cos t)/t^2 with their Taylor series near 0.
+    # sin(t)/t and (1 - cos t)/t^2, with their Taylor series near 0.
     a = np.where(small, 1.0 - theta2 / 6.0, np.sin(safe) / safe)
     b = np.where(small, 0.5 - theta2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
     K = hat(w)
-    K2 = K @ K
-    return np.eye(3) + a[..., None, None] * K + b[..., None, None] * K2
+    return _EYE + a[..., None, None] * K + b[..., None, None] * (K @ K)
+
+
+_EYE = np.eye(3)
+_VEE_I = np.array([2, 0, 1])
+_VEE_J = np.array([1, 2, 0])
 
 
 def so3_log(R: Array) -> Array:
     """Rotation vector of a rotation matrix, angle in [0, pi], (..., 3, 3) -> (..., 3)."""
     R = np.asarray(R, dtype=np.float64)
-    tr = R[..., 0, 0] + R[..., 1, 1] + R[..., 2, 2]
-    cos_t = np.clip((tr - 1.0) * 0.5, -1.0, 1.0)
+    cos_t = np.minimum(np.maximum((R.trace(axis1=-2, axis2=-1) - 1.0) * 0.5, -1.0), 1.0)
     theta = np.arccos(cos_t)
-    # v = sin(theta) * axis
-    v = 0.5 * np.stack(
-        [R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]],
-        -1,
-    )
-    sin_t = np.sin(theta)
+    # v = sin(theta) * axis, from the skew-symmetric part of R.
+    v = 0.5 * (R[..., _VEE_I, _VEE_J] - R[..., _VEE_J, _VEE_I])
     small = theta < 1e-4
     near_pi = theta > np.pi - 1e-3
     regular = ~(small | near_pi)
-    scale = np.where(small, 1.0 + theta * theta / 6.0, theta / np.where(regular, sin_t, 1.0))
+    scale = np.where(
+        small, 1.0 + theta * theta / 6.0, theta / np.where(regular, np.sin(theta), 1.0)
+    )
     out = scale[..., None] * v
-    if np.any(near_pi):
-        # (R + I) / 2 = a a^T at theta = pi: take the column of the largest diagonal entry,
-        # with the sign that agrees with v (which still carries it just below pi).
-        Bm = 0.5 * (R + np.eye(3))
-        diag = np.stack([Bm[..., 0, 0], Bm[..., 1, 1], Bm[..., 2, 2]], -1)
+    if near_pi.any():
+        # Near pi, sin(theta) loses the axis; use the symmetric part instead:
+        # a a^T = ((R + R^T) / 2 - cos(theta) I) / (1 - cos(theta)), exact for any theta.
+        # Take the column of its largest diagonal entry, signed to agree with v.
+        Bm = (0.5 * (R + np.swapaxes(R, -1, -2)) - cos_t[..., None, None] * _EYE) / (
+            1.0 - cos_t[..., None, None]
+        )
+        diag = np.diagonal(Bm, axis1=-2, axis2=-1)
         k = np.argmax(diag, axis=-1)
         col = np.take_along_axis(Bm, k[..., None, None].repeat(3, -2), -1)[..., 0]
         dk = np.take_along_axis(diag, k[..., None], -1)
         axis = col / np.sqrt(np.maximum(dk, 1e-300))
-        sign = np.where(np.einsum("...i,...i->...", axis, v) < 0.0, -1.0, 1.0)
-        axis = axis * sign[..., None]
-        out = np.where(near_pi[..., None], theta[..., None] * axis, out)
+        sign = np.where((axis * v).sum(-1) < 0.0, -1.0, 1.0)
+        out = np.where(near_pi[..., None], (theta * sign)[..., None] * axis, out)
     return out
 
 
@@ -148,8 +153,24 @@ def integrate(X: HandState, U: Array, dt: float) -> HandState:
     return HandState(
         X.position + U[..., TRANS] * dt,
         so3_exp(U[..., ROT] * dt) @ X.rotation,
-        np.clip(X.openness + U[..., FING] * dt, 0.0, 1.0),
+        np.minimum(np.maximum(X.openness + U[..., FING] * dt, 0.0), 1.0),
     )
+
+
+def group_norms(x: Array) -> Array:
+    """Euclidean norms of the translation, rotation and finger groups, (..., D) -> (..., 3).
+
+    With no fingers (D = 6) the last column is 0.
+    """
+    sq = x * x
+    if x.shape[-1] > 6:
+        return np.sqrt(np.add.reduceat(sq, _GROUP_STARTS, axis=-1))
+    out = np.zeros((*x.shape[:-1], 3))
+    out[..., :2] = np.sqrt(np.add.reduceat(sq, _GROUP_STARTS[:2], axis=-1))
+    return out
+
+
+_GROUP_STARTS = np.array([0, 3, 6])
 
 
 def saturate(U: Array, v_max: Array) -> Array:
@@ -160,9 +181,10 @@ def saturate(U: Array, v_max: Array) -> Array:
         v_max: (6 + F,) limits; v_max[0] bounds |v| [m/s], v_max[3] bounds |w| [rad/s],
             v_max[6:] bound each finger [1/s].
     """
+    n = group_norms(U)[..., :2]
+    fac = np.minimum(1.0, v_max[0:4:3] / np.maximum(n, 1e-300))
     out = np.array(U, dtype=np.float64, copy=True)
-    for group, limit in ((TRANS, v_max[0]), (ROT, v_max[3])):
-        n = np.linalg.norm(out[..., group], axis=-1, keepdims=True)
-        out[..., group] *= np.minimum(1.0, limit / np.maximum(n, 1e-300))
-    out[..., FING] = np.clip(out[..., FING], -v_max[FING], v_max[FING])
+    out[..., TRANS] *= fac[..., 0:1]
+    out[..., ROT] *= fac[..., 1:2]
+    out[..., FING] = np.minimum(np.maximum(out[..., FING], -v_max[FING]), v_max[FING])
     return out
