@@ -47,7 +47,7 @@ class ArbitrationConfig:
     k_finger_per_s: float = 2.0
     v_max_mps: float = 0.25
     w_max_radps: float = 1.0
-    g_max_per_s: float = 1.5
+    g_max_per_s: float = 4.0
     eps_trans_m: float = 1e-3
     eps_rot_rad: float = 1e-3
     eps_finger: float = 1e-3
