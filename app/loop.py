@@ -190,6 +190,11 @@ def unpack(v: list[float] | None) -> HandState | None:
     return HandState(a[0:3], a[3:12].reshape(3, 3), a[12:])
 
 
+def _rounded(a: Array | None, decimals: int = 5) -> list[list[float]] | None:
+    """Landmarks for the record: display data, 5 decimals (10 um, 1e-5 of the image)."""
+    return None if a is None else np.round(a, decimals).tolist()
+
+
 class _Recorder:
     """Writes tick records on its own thread: a slow disk never stalls the loop."""
 
@@ -414,10 +419,11 @@ class TeleopLoop:
         result = self.plant.apply(X_next)
         t_cmd = self.clock.now()
         self.X_prev, self.X_current = self.X_current, result.X_current
-        if result.segment_changed:
-            self._end_segment()
         if result.outcome and not self.outcome:
             self.outcome = result.outcome
+            self._end_segment()  # the place segment ends with the outcome
+        elif result.segment_changed:
+            self._end_segment()
         for e in result.events:
             self.events_log.append((self.tick_index, e))
 
@@ -557,10 +563,8 @@ class TeleopLoop:
                     detected=s.detected,
                     handedness=s.handedness,
                     score=s.score,
-                    landmarks=None if s.landmarks_image is None else s.landmarks_image.tolist(),
-                    world_landmarks=None
-                    if s.landmarks_world is None
-                    else s.landmarks_world.tolist(),
+                    landmarks=_rounded(s.landmarks_image),
+                    world_landmarks=_rounded(s.landmarks_world),
                     p_cam=s.p_cam_palm_m.tolist(),
                     R_cam=s.R_cam_palm.ravel().tolist(),
                     openness=s.openness.tolist(),

@@ -1,0 +1,237 @@
+"""Session recording and headless replay: round trips, crashes, bad files, real videos."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dsteleop.app.loop import LoopConfig
+from dsteleop.app.recording import read_session
+from dsteleop.app.replay import as_recorded, replay_session
+from dsteleop.app.run_cmd import run_headless
+from dsteleop.app.setup import HISTORY_FILE, Setup, build
+from dsteleop.arbitration import Mode, OperatorHistory
+
+CLI = [sys.executable, "-m", "dsteleop.app.cli"]
+
+
+@pytest.fixture(scope="module")
+def ds_session(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One DS session recorded from the demo operator (headless)."""
+    root = tmp_path_factory.mktemp("sessions")
+    folder = root / "demo-ds"
+    built = build(
+        Setup(source="demo", loop=LoopConfig(mode=Mode.DS), realtime=False, history_dir=root)
+    )
+    try:
+        built.loop.start_recording(folder)
+        run_headless(built.loop, built.demo, max_ticks=1200)
+    finally:
+        built.loop.close()
+    return folder
+
+
+def test_session_files_and_metadata(ds_session: Path) -> None:
+    s = read_session(ds_session)
+    assert s.complete and not s.truncated
+    meta = s.meta
+    assert meta["schema"] == "dsteleop.session/1"
+    assert meta["loop"]["arbitration"]["kappa"] == 4.0
+    assert meta["mode"] == "DS" and meta["dims"][:6] == ["x", "y", "z", "roll", "pitch", "yaw"]
+    assert meta["plant"]["utensil"] == "spoon" and "pick_known" in meta["plant"]
+    assert meta["n_ticks"] == len(s.ticks) > 100
+    assert meta["outcome"] in ("success", "failure")
+    first = s.ticks[0]
+    for key in (
+        "k",
+        "t",
+        "hand",
+        "X_current",
+        "X_goal",
+        "X_next",
+        "U_cmd",
+        "arb",
+        "timing",
+        "events",
+    ):
+        assert key in first
+    arb = next(r["arb"] for r in s.ticks if r["arb"])
+    for key in (
+        "alpha",
+        "P_human",
+        "P_robot",
+        "B",
+        "psi_human",
+        "psi_robot",
+        "U_human",
+        "U_robot",
+        "U_out",
+    ):
+        assert len(arb[key]) == len(meta["dims"])
+    events = [e for r in s.ticks for e in r["events"]]
+    assert any(e.startswith("grasp") for e in events)
+    # The operator history persisted beside the session: one attempt per finished segment.
+    hist = OperatorHistory.from_dict(json.loads((ds_session.parent / HISTORY_FILE).read_text()))
+    assert len(hist) == 2
+
+
+def test_replay_in_the_recorded_mode_reproduces_every_alpha(ds_session: Path) -> None:
+    s = read_session(ds_session)
+    recorded = np.array([r["arb"]["alpha"] for r in s.ticks if r["arb"]])
+    trace = replay_session(s, Mode.DS)
+    np.testing.assert_allclose(trace.alpha[trace.arbitrated], recorded, atol=1e-9, rtol=0)
+    assert trace.outcome == s.meta["outcome"]
+    again = as_recorded(s)
+    np.testing.assert_allclose(again.alpha[again.arbitrated], recorded, atol=0, rtol=0)
+
+
+def test_replay_command_writes_complete_metrics(ds_session: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    r = subprocess.run(
+        [*CLI, "replay", str(ds_session), "--modes", "S,DS,manual", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert r.returncode == 0, r.stderr
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["wall_s"] > 0
+    (sess,) = m["sessions"]
+    assert sess["name"] == ds_session.name and sess["duration_s"] > 3
+    for mode in ("S", "DS", "manual"):
+        row = sess["modes"][mode]
+        for key in ("success", "time_s", "cosine_distance", "agreement", "mean_alpha"):
+            assert key in row
+        assert set(row["mean_alpha"]) >= {"x", "y", "z", "roll", "pitch", "yaw"}
+        assert m["modes"][mode]["n"] == 1
+    assert sess["modes"]["manual"]["cosine_distance"] == pytest.approx(0.0, abs=1e-9)
+    assert sess["modes"]["manual"]["agreement"] == 1.0
+    assert "S_vs_DS" in m["tests"]
+    assert sorted(p.name for p in out.glob("*.png"))  # plots were written
+
+
+def test_a_truncated_last_record_is_skipped_with_a_warning(
+    ds_session: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    copy = tmp_path / "cut"
+    shutil.copytree(ds_session, copy)
+    ticks = copy / "ticks.jsonl"
+    data = ticks.read_bytes()
+    n = data.count(b"\n")
+    ticks.write_bytes(data + data.splitlines(keepends=True)[-1][:40])  # half a record
+    with caplog.at_level(logging.WARNING):
+        s = read_session(copy)
+    assert s.truncated and len(s.ticks) == n
+    assert "truncated" in caplog.text
+    replay_session(s, Mode.S)  # replays up to the last complete tick
+
+
+def test_bad_sessions_give_one_line_errors(ds_session: Path, tmp_path: Path) -> None:
+    bad = tmp_path / "bad"
+    shutil.copytree(ds_session, bad)
+    (bad / "meta.json").write_text("{ not json")
+    missing = tmp_path / "nope"
+    mid = tmp_path / "mid"
+    shutil.copytree(ds_session, mid)
+    lines = (mid / "ticks.jsonl").read_text().splitlines()
+    lines[3] = lines[3][:20]
+    (mid / "ticks.jsonl").write_text("\n".join(lines) + "\n")
+    for target, needle in (
+        (bad, "unreadable metadata"),
+        (missing, "not found"),
+        (mid, "corrupt record"),
+    ):
+        r = subprocess.run(
+            [*CLI, "replay", str(target), "--out", str(tmp_path / "o")],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert r.returncode == 2, r.stderr
+        assert needle in r.stderr and "Traceback" not in r.stderr
+        assert r.stderr.strip().count("\n") == 0
+    r = subprocess.run(
+        [*CLI, "replay", str(ds_session), "--modes", "X", "--out", str(tmp_path / "o")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert r.returncode == 2 and "unknown mode" in r.stderr
+
+
+def test_a_killed_recording_replays_up_to_its_last_complete_tick(tmp_path: Path) -> None:
+    folder = tmp_path / "killed"
+    proc = subprocess.Popen(
+        [
+            *CLI,
+            "run",
+            "--source",
+            "demo",
+            "--realtime",
+            "--record",
+            str(folder),
+            "--max-seconds",
+            "60",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        ticks = folder / "ticks.jsonl"
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            if ticks.exists() and ticks.read_bytes().count(b"\n") >= 45:
+                break
+            time.sleep(0.1)
+        else:
+            pytest.fail("the recording did not start")
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait(timeout=30)
+    s = read_session(folder)
+    assert not s.complete
+    assert len(s.ticks) >= 45
+    trace = replay_session(s, Mode.DS)
+    assert len(trace.t_s) == len(s.ticks)
+    r = subprocess.run(
+        [*CLI, "replay", str(folder), "--modes", "DS", "--out", str(tmp_path / "o"), "--no-plots"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert r.returncode == 0, r.stderr
+
+
+@pytest.mark.slow
+def test_the_real_videos_replay_through_the_whole_system(shared_data: Path, tmp_path: Path) -> None:
+    videos = sorted((shared_data / "videos").glob("*.mp4"))
+    assert len(videos) == 4
+    out = tmp_path / "videos"
+    r = subprocess.run(
+        [*CLI, "replay", *map(str, videos), "--modes", "S,DS", "--out", str(out), "--workers", "2"],
+        capture_output=True,
+        text=True,
+        timeout=1200,
+    )
+    assert r.returncode == 0, r.stderr
+    m = json.loads((out / "metrics.json").read_text())
+    assert [s["name"] for s in m["sessions"]] == [v.name for v in videos]
+    for s in m["sessions"]:
+        assert s["duration_s"] > 3
+        for mode in ("S", "DS"):
+            row = s["modes"][mode]
+            assert row["arbitrated_ticks"] > 10, (s["name"], mode)
+            assert row["cosine_distance"] is not None and 0 <= row["cosine_distance"] <= 2
+            assert row["agreement"] is not None and 0 <= row["agreement"] <= 1
+    for mode in ("S", "DS"):
+        assert m["modes"][mode]["n"] == 4
