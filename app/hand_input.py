@@ -98,8 +98,10 @@ class TrackedHandInput:
         input_delay_s: float = 0.0,
         description: str = "hand source",
         on_close: Callable[[], None] | None = None,
+        finished: Callable[[], bool] | None = None,
     ) -> None:
         self._latest = latest
+        self._finished = finished
         self.mapping = mapping
         self.input_delay_s = input_delay_s
         self._description = description
@@ -134,10 +136,22 @@ class TrackedHandInput:
         """Headless: frames are read and tracked in the caller's thread, up to loop time
         `now`, on the source's own clock (`t_capture_s` + `t0_s`); nothing is dropped."""
         reader = _SyncReader(source, tracker, t0_s)
-        return cls(reader.latest, mapping, input_delay_s, source.describe(), reader.close)
+        return cls(
+            reader.latest,
+            mapping,
+            input_delay_s,
+            source.describe(),
+            reader.close,
+            lambda: reader.finished,
+        )
 
     def describe(self) -> str:
         return self._description
+
+    @property
+    def finished(self) -> bool:
+        """The source has no more frames (a file that ended); False for live sources."""
+        return self._finished is not None and self._finished()
 
     def mapping_config(self) -> dict[str, Any]:
         return dataclasses.asdict(self.mapping.config)

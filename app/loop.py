@@ -249,6 +249,10 @@ class TeleopLoop:
         self.meta = dict(meta or {})
         self.dims = dim_names(plant.finger_names)
         self.on_segment_end: Callable[[OperatorHistory], None] | None = None
+        # Called with the session folder when a recording starts, and with None when it stops
+        # (the camera-frame tee of `--record-video` listens here).
+        self.on_recording: Callable[[Path | None], None] | None = None
+        self.record_root: Path | None = None  # where `controls.set_recording(True)` records
         self._recorder: _Recorder | None = None
         self._stop = threading.Event()
         self._latency: dict[str, list[float]] = {}
@@ -298,6 +302,15 @@ class TeleopLoop:
             self._reset_task(req.utensil)
         if req.record is False:
             self.stop_recording()
+        elif req.record is True:
+            if self.record_root is None:
+                log.warning("recording requested, but no recording folder is set (--record DIR)")
+            else:
+                import datetime
+
+                stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
+                utensil = self.plant.describe().get("utensil", "task")
+                self.start_recording(self.record_root / f"{stamp}-{self.mode.value}-{utensil}")
 
     def _set_params(self, params: dict[str, Any]) -> None:
         params = dict(params)
@@ -328,8 +341,15 @@ class TeleopLoop:
         }
 
     def start_recording(self, folder: Path, extra: dict[str, Any] | None = None) -> Path:
-        """Record from the next tick into `folder` (a new session folder)."""
+        """Record a trial into `folder` (a new session folder) from the next tick.
+
+        A recording is one run of the task from its start, so that a replay can rebuild the
+        same world: if the loop has already ticked, the task is reset first. Call from the
+        loop's thread (other threads use `controls.set_recording(True)`).
+        """
         self.stop_recording()
+        if self.tick_index > 0:
+            self._reset_task(None)
         import datetime
 
         meta = {
@@ -338,11 +358,15 @@ class TeleopLoop:
             **(extra or {}),
         }
         self._recorder = _Recorder(SessionWriter(folder, meta))
+        if self.on_recording is not None:
+            self.on_recording(Path(folder))
         log.info("recording to %s", folder)
         return Path(folder)
 
     def stop_recording(self) -> None:
         if self._recorder is not None:
+            if self.on_recording is not None:
+                self.on_recording(None)
             self._recorder.close(
                 {"outcome": self.outcome, "events": self.events_log, "timing": self.rate.summary()}
             )

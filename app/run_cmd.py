@@ -41,6 +41,11 @@ def add_loop_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--record", type=Path, default=None, metavar="DIR", help="record a session into DIR"
     )
+    parser.add_argument(
+        "--record-video",
+        action="store_true",
+        help="also record the camera frames (for replay --retrack)",
+    )
 
 
 def loop_config(args: argparse.Namespace) -> LoopConfig:
@@ -83,6 +88,7 @@ def run(args: argparse.Namespace) -> int:
             goal_noise_m=args.goal_noise,
             realtime=realtime,
             history_dir=history_dir,
+            record_video=bool(args.record_video),
         )
     )
     loop = built.loop
@@ -115,9 +121,11 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def run_headless(loop: Any, demo: Any, max_ticks: int) -> None:
-    """Tick on the manual clock as fast as possible until an outcome or `max_ticks`."""
+def run_headless(loop: Any, demo: Any, max_ticks: int, tail_s: float = 0.5) -> None:
+    """Tick on the manual clock as fast as possible until an outcome, the end of a file
+    source (plus `tail_s`, so the halt shows in the record), or `max_ticks`."""
     dt = loop.config.dt_s
+    end_at: float | None = None
     for k in range(max_ticks):
         t = k * dt
         loop.clock.sleep_until(t)
@@ -125,5 +133,8 @@ def run_headless(loop: Any, demo: Any, max_ticks: int) -> None:
         if demo is not None:
             demo.watch(snap)
         if loop.outcome:
-            # A few more ticks so the recording shows the scene at rest after the outcome.
+            break
+        if end_at is None and getattr(loop.hand, "finished", False):
+            end_at = t + tail_s
+        if end_at is not None and t >= end_at:
             break

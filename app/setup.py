@@ -24,6 +24,7 @@ from dsteleop.app.hand_input import TrackedHandInput
 from dsteleop.app.loop import LoopConfig, TeleopLoop
 from dsteleop.app.plant import KitchenPlant
 from dsteleop.app.timing import ManualClock, MonotonicClock
+from dsteleop.app.video_tee import VideoTee
 from dsteleop.arbitration import OperatorHistory
 from dsteleop.errors import DsteleopError
 from dsteleop.tracking.mapping import MappingConfig, WorkspaceMapping
@@ -49,6 +50,8 @@ class Setup:
         mapping: camera -> robot mapping.
         export_scene: compute link poses each tick (for a viewer).
         history_dir: where the operator history persists (the recording root), or None.
+        record_video: also record the camera frames of a session (webcam and video sources),
+            for `dsteleop replay --retrack`.
     """
 
     source: str = "demo"
@@ -60,6 +63,7 @@ class Setup:
     mapping: MappingConfig = field(default_factory=MappingConfig)
     export_scene: bool = False
     history_dir: Path | None = None
+    record_video: bool = False
 
 
 @dataclass
@@ -135,6 +139,10 @@ def build(setup: Setup) -> Built:
             kind = "video"
         else:
             raise DsteleopError(f"unknown source {spec!r} (use demo, webcam:N, video:PATH or auto)")
+        tee: VideoTee | None = None
+        if setup.record_video and kind in ("webcam", "video"):
+            tee = VideoTee(source)
+            source = tee
         delay = setup.loop.input_delay_s
         if setup.realtime:
             stream = TrackingStream(source, HandTracker()).start()
@@ -164,4 +172,8 @@ def build(setup: Setup) -> Built:
     if setup.history_dir is not None:
         folder = setup.history_dir
         loop.on_segment_end = lambda h: save_history(folder, h)
+        loop.record_root = folder
+    if tee is not None:
+        video_tee = tee
+        loop.on_recording = lambda f: video_tee.start(f) if f is not None else video_tee.stop()
     return Built(loop, demo, kind)
