@@ -292,3 +292,27 @@ def test_halt_policy_does_not_move_without_a_hand() -> None:
     assert all(s.status == "lost" and s.reason == "no hand" for s in snaps[3:])
     assert palm_speeds(snaps).max() < 2e-3
     assert math.isclose(float(np.linalg.norm(snaps[-1].U_cmd)), 0.0)
+
+
+def test_an_injected_input_delay_delays_the_robot() -> None:
+    def path(s: HandState, t: float) -> HandState:
+        return moved(s, (0.0, -0.1, 0.0), min_jerk((t - 0.5) / 1.5))
+
+    runs = {}
+    for delay in (0.0, 0.2):
+        loop = scripted_loop(path, Mode.MANUAL)
+        loop.config = dataclasses.replace(loop.config, input_delay_s=delay)
+        loop.hand.input_delay_s = delay  # type: ignore[attr-defined]
+        try:
+            runs[delay] = run_ticks(loop, 3.0)
+        finally:
+            loop.close()
+        assert loop.session_meta()["loop"]["input_delay_s"] == delay
+
+    def y_at_half(snaps: list[Snapshot]) -> float:
+        y = np.array([s.X_current.position[1] for s in snaps])
+        y0, y1 = y[0], y[-1]
+        return float(snaps[int(np.argmax(np.abs(y - y0) >= 0.5 * abs(y1 - y0)))].t_s)
+
+    lag = y_at_half(runs[0.2]) - y_at_half(runs[0.0])
+    assert lag == pytest.approx(0.2, abs=DT + 1e-6)
