@@ -190,8 +190,16 @@ def unpack(v: list[float] | None) -> HandState | None:
     return HandState(a[0:3], a[3:12].reshape(3, 3), a[12:])
 
 
-def _rounded(a: Array | None, decimals: int = 5) -> list[list[float]] | None:
-    """Landmarks for the record: display data, 5 decimals (10 um, 1e-5 of the image)."""
+def _sig(a: Array | list[float] | None) -> list[float] | None:
+    """Outputs for the record, to 10 significant digits (the replay's input, the hand, and
+    all times keep full precision)."""
+    if a is None:
+        return None
+    return [float(f"{x:.10g}") for x in np.asarray(a, dtype=np.float64).ravel().tolist()]
+
+
+def _rounded(a: Array | None, decimals: int = 4) -> list[list[float]] | None:
+    """Landmarks for the record: display data, 4 decimals (0.1 mm, 1e-4 of the image)."""
     return None if a is None else np.round(a, decimals).tolist()
 
 
@@ -596,7 +604,7 @@ class TeleopLoop:
         arb = None
         if step is not None:
             arb = {
-                k: getattr(step, k).tolist()
+                k: _sig(getattr(step, k))
                 for k in (
                     "alpha",
                     "P_human",
@@ -619,12 +627,12 @@ class TeleopLoop:
             "outcome": snap.outcome,
             "events": list(snap.events),
             "hand": hand,
-            "X_current": pack(snap.X_current),
-            "X_goal": pack(snap.X_goal),
-            "X_next": pack(snap.X_next),
-            "U_cmd": None if snap.U_cmd is None else snap.U_cmd.tolist(),
+            "X_current": _sig(pack(snap.X_current)),
+            "X_goal": _sig(pack(snap.X_goal)),
+            "X_next": _sig(pack(snap.X_next)),
+            "U_cmd": _sig(snap.U_cmd),
             "arb": arb,
-            "timing": snap.timing,
+            "timing": {k: round(v, 4) for k, v in snap.timing.items()},
         }
 
     # --- running ---------------------------------------------------------------------
