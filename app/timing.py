@@ -132,6 +132,13 @@ class RateClock:
     def ticks(self) -> int:
         return self._index
 
+    def reset_stats(self) -> None:
+        """Forget the statistics so far (after a warm-up), keep the schedule."""
+        self._jitter.clear()
+        self._duration.clear()
+        self.overruns = 0
+        self._index = 0
+
     def summary(self) -> dict[str, float | int]:
         """Jitter and duration statistics [ms] over the recent history, and counts."""
         out: dict[str, float | int] = {"ticks": self._index, "overruns": self.overruns}
