@@ -316,3 +316,25 @@ def test_an_injected_input_delay_delays_the_robot() -> None:
 
     lag = y_at_half(runs[0.2]) - y_at_half(runs[0.0])
     assert lag == pytest.approx(0.2, abs=DT + 1e-6)
+
+
+def test_a_slow_observer_only_misses_snapshots() -> None:
+    loop = scripted_loop(lambda s, t: moved(s, (0.0, -0.05, 0.0), min_jerk(t)), Mode.DS)
+    stalled = loop.broadcaster.subscribe()  # never reads
+    reader = loop.broadcaster.subscribe()
+    seen = []
+    try:
+        for k in range(60):
+            t = k * DT
+            loop.clock.sleep_until(t)
+            loop.tick(t)
+            if k % 10 == 9:
+                snap = reader.latest()
+                assert snap is not None
+                seen.append(snap.tick)
+    finally:
+        loop.close()
+    assert stalled.received == 60 and stalled.dropped == 59
+    assert stalled.latest().tick == 59  # newest wins, one slot
+    assert seen == [9, 19, 29, 39, 49, 59]
+    assert reader.dropped == 60 - 6
