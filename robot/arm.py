@@ -1,0 +1,632 @@
+"""The arm + hand under position control: pose and openness in, achieved state out.
+
+One control tick (`Robot.set_target` then `Robot.step`, 1/30 s):
+
+    set_target(p, R, g):  p clamped into the workspace (box, then reach sphere about the
+                          shoulder)  ->  IK (`kinematics.ArmChain.ik`: damped least
+                          squares, joint limits, null-space pull to the rest posture,
+                          warm-started from the last solution)  ->  position motors
+                          finger joints: q = q_closed + g * (q_open - q_closed), per finger
+    step():               `substeps` physics steps of 1/(30 * substeps) s, then contacts
+    state():              palm pose by forward kinematics of the simulated joints
+
+Finger openness in the returned `HandState` is the commanded set-point, not the measured
+one: a finger stopped by an object keeps squeezing as long as its command stays closed,
+which is what a closed-loop integrator X_next = integrate(X_current, U, dt) needs (with the
+measured value, a hand that stopped moving would command "as open as it is now" and let
+go). The measured openness is `RobotState.openness_measured`.
+
+Grasping is contact and friction. Two rules keep it stable in a rigid-body simulator:
+    contact stall   when a finger first touches a graspable body while closing, its joint
+                    angles are latched; its target then closes at most `squeeze_rad` past
+                    them. The motor squeezes with its full effort, but the pad cannot be
+                    driven deep into the object (which makes objects wedge and pop out).
+                    The latch frees when the command opens past it.
+    thumb effort    the thumb is as strong as the three fingers it opposes together.
+An optional grasp helper (`grasp_helper=True`, off by default) adds a fixed constraint
+between palm and object, created only when the thumb and at least one other finger whose
+commands are closed (openness <= `helper_openness`) touch the same graspable body, and
+removed as soon as the thumb or all the other fingers are commanded open; its strength is
+`helper_max_force_n`. With the defaults the scripted run holds every utensil by friction
+alone.
+
+Quaternions cross this boundary as rotation matrices; PyBullet's xyzw stays inside.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+
+import numpy as np
+import pybullet as pb
+from numpy.typing import NDArray
+
+from dsteleop.arbitration.se3 import HandState
+from dsteleop.errors import DsteleopError
+from dsteleop.robot.hand_urdf import FINGER_NAMES, JOINT_OPEN_CLOSED_RAD, PALM_LINK
+from dsteleop.robot.kinematics import ArmChain
+from dsteleop.robot.model import ARM_JOINTS, JointInfo, LoadedRobot
+from dsteleop.robot.world import FINGER_FRICTION, R_from_quat_xyzw
+
+Array = NDArray[np.float64]
+log = logging.getLogger(__name__)
+
+CONTROL_DT_S = 1.0 / 30.0
+
+
+@dataclass(frozen=True)
+class Workspace:
+    """Reachable region the palm target is clamped into, base frame [m].
+
+    Attributes:
+        lower_m: (x, y, z) lower corner of the box.
+        upper_m: (x, y, z) upper corner of the box.
+        shoulder_m: centre of the reach sphere (the iiwa's joint-2 axis).
+        reach_m: radius of the reach sphere for the palm origin.
+    """
+
+    lower_m: tuple[float, float, float] = (0.25, -0.65, 0.02)
+    upper_m: tuple[float, float, float] = (0.95, 0.65, 0.80)
+    shoulder_m: tuple[float, float, float] = (0.0, 0.0, 0.36)
+    reach_m: float = 0.88
+
+    def clamp(self, p_m: Array) -> tuple[Array, bool]:
+        """`p_m` moved into the box, then into the sphere; and whether it moved."""
+        lo, hi, c = self.lower_m, self.upper_m, self.shoulder_m
+        x = [min(max(float(p_m[k]), lo[k]), hi[k]) for k in range(3)]
+        d = [x[k] - c[k] for k in range(3)]
+        r = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        if r > self.reach_m:
+            x = [c[k] + d[k] * (self.reach_m / r) for k in range(3)]
+        q = np.array(x)
+        moved = any(abs(x[k] - float(p_m[k])) > 1e-9 for k in range(3))
+        return q, moved
+
+
+@dataclass(frozen=True)
+class RobotConfig:
+    """Control and physics settings (validated at construction).
+
+    Attributes:
+        substeps: physics steps per control tick (time step = 1 / (30 * substeps) s).
+        solver_iterations: PyBullet constraint-solver iterations per physics step.
+        ik_iterations: maximum damped-least-squares iterations per tick.
+        ik_tol_m: IK stops when the position error is below this [m] ...
+        ik_tol_rad: ... and the orientation error below this [rad].
+        ik_damping_m: lambda of the damped least squares (regularises singularities) [m].
+        unreachable_tol_m: position error of the IK solution above which the target is
+            reported unreachable [m].
+        unreachable_tol_rad: orientation error of the IK solution above which the target is
+            reported unreachable [rad].
+        arm_force_nm: motor effort limit of every arm joint [N m].
+        arm_position_gain: PyBullet position gain of the arm motors.
+        finger_force_nm: motor effort limit of each joint of index, middle, ring [N m].
+        thumb_force_nm: motor effort limit of each thumb joint [N m]; the thumb opposes three
+            fingers, so it is as strong as the three together and the grip stays centred.
+        finger_position_gain: PyBullet position gain of the finger motors.
+        grasp_helper: enable the grasp helper constraint (module docstring; off: friction).
+        helper_openness: a finger counts as closed when its commanded openness is <= this.
+        helper_max_force_n: strength of the helper constraint [N].
+        squeeze_rad: a finger touching a graspable body closes at most this far past the
+            joint angles where it met it [rad] (module docstring: contact stall).
+        rest_posture_rad: null-space rest posture of the arm joints, by name [rad].
+        workspace: palm target clamp region.
+    """
+
+    substeps: int = 3
+    solver_iterations: int = 10
+    ik_iterations: int = 1
+    ik_tol_m: float = 2e-5
+    ik_tol_rad: float = 2e-4
+    ik_damping_m: float = 0.02
+    unreachable_tol_m: float = 0.01
+    unreachable_tol_rad: float = math.radians(5.0)
+    arm_force_nm: float = 300.0
+    arm_position_gain: float = 0.3
+    finger_force_nm: float = 0.6
+    thumb_force_nm: float = 1.8
+    finger_position_gain: float = 0.3
+    grasp_helper: bool = False
+    helper_openness: float = 0.5
+    helper_max_force_n: float = 40.0
+    squeeze_rad: float = 0.3
+    rest_posture_rad: Mapping[str, float] = field(
+        default_factory=lambda: MappingProxyType(
+            dict(zip(ARM_JOINTS, (0.0, 0.45, 0.0, -1.45, 0.0, 1.2, 0.0), strict=True))
+        )
+    )
+    workspace: Workspace = field(default_factory=Workspace)
+
+    def __post_init__(self) -> None:
+        for name in ("substeps", "solver_iterations", "ik_iterations"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise DsteleopError(f"robot config: {name} must be an integer >= 1, got {v!r}")
+        for name in (
+            "ik_tol_m",
+            "ik_tol_rad",
+            "ik_damping_m",
+            "unreachable_tol_m",
+            "unreachable_tol_rad",
+            "arm_force_nm",
+            "arm_position_gain",
+            "finger_force_nm",
+            "thumb_force_nm",
+            "finger_position_gain",
+            "helper_openness",
+            "helper_max_force_n",
+            "squeeze_rad",
+        ):
+            v = getattr(self, name)
+            if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+                raise DsteleopError(f"robot config: {name} must be finite and > 0, got {v!r}")
+        missing = sorted(set(ARM_JOINTS) - set(self.rest_posture_rad))
+        if missing:
+            raise DsteleopError(f"robot config: rest_posture_rad lacks joint {missing[0]!r}")
+
+    @property
+    def physics_dt_s(self) -> float:
+        """Physics time step [s]."""
+        return CONTROL_DT_S / self.substeps
+
+
+@dataclass(frozen=True)
+class Contact:
+    """One contact point between a robot link and another body.
+
+    Attributes:
+        robot_link: name of the robot link.
+        other_body: body id of the other body.
+        other_name: name of the other body ("table", "spoon", ...).
+        p_base_contact_m: (3,) contact point on the robot link, base frame [m].
+        normal_force_n: contact normal force [N].
+    """
+
+    robot_link: str
+    other_body: int
+    other_name: str
+    p_base_contact_m: tuple[float, float, float]
+    normal_force_n: float
+
+
+@dataclass(frozen=True)
+class RobotState:
+    """What the robot achieved after a tick (never NaN).
+
+    Attributes:
+        palm: achieved palm pose (forward kinematics) in the base frame; openness is the
+            commanded finger set-point (see module docstring), order `FINGER_NAMES`.
+        openness_measured: (F,) openness measured from the finger joints, in [0, 1].
+        joint_positions_rad: every revolute joint's position by name [rad].
+        contacts: contact points of robot links with other bodies.
+        target_clamped: the last position target lay outside the workspace and was moved.
+        unreachable: the IK solution misses the (clamped) target by more than the tolerance.
+        ik_error_m: position error of the IK solution [m].
+        ik_error_rad: orientation error of the IK solution [rad].
+        grasped: name of the body held by the grasp helper, or None.
+        t_s: simulated time since the last reset [s].
+    """
+
+    palm: HandState
+    openness_measured: Array
+    joint_positions_rad: Mapping[str, float]
+    contacts: tuple[Contact, ...]
+    target_clamped: bool
+    unreachable: bool
+    ik_error_m: float
+    ik_error_rad: float
+    grasped: str | None
+    t_s: float
+
+
+def _det3(R: Array) -> float:
+    return float(
+        R[0, 0] * (R[1, 1] * R[2, 2] - R[1, 2] * R[2, 1])
+        - R[0, 1] * (R[1, 0] * R[2, 2] - R[1, 2] * R[2, 0])
+        + R[0, 2] * (R[1, 0] * R[2, 1] - R[1, 1] * R[2, 0])
+    )
+
+
+def _as_vec(x: object, n: int, name: str) -> Array:
+    a = np.asarray(x, dtype=np.float64)
+    if a.shape != (n,):
+        raise DsteleopError(f"{name} must have shape ({n},), got {a.shape}")
+    if not np.isfinite(a).all():
+        raise DsteleopError(f"{name} must be finite, got {a.tolist()}")
+    return a
+
+
+class Robot:
+    """The arm + hand in a PyBullet client; see the module docstring for one tick.
+
+    Args:
+        client: PyBullet physics client id (DIRECT mode).
+        loaded: the loaded robot body with its joint and link tables.
+        chain: the arm's kinematic chain (base -> palm), read from the same URDF.
+        config: control and physics settings.
+        body_names: names of other bodies, for contact reports.
+        graspable: bodies the grasp helper may hold.
+    """
+
+    def __init__(
+        self,
+        client: int,
+        loaded: LoadedRobot,
+        chain: ArmChain,
+        config: RobotConfig,
+        body_names: Mapping[int, str] | None = None,
+        graspable: tuple[int, ...] = (),
+    ) -> None:
+        self._c = client
+        self._graspable = frozenset(graspable)
+        self._state_cache: RobotState | None = None
+        self._held: int | None = None
+        self._helper_cid: int | None = None
+        self._contacts: tuple[Contact, ...] = ()
+        self._r = loaded
+        self.config = config
+        self._body = loaded.body
+        self._names = dict(body_names or {})
+        self._link_names = {i: n for n, i in loaded.links.items()}
+        self._palm = loaded.links[PALM_LINK]
+        self._arm = [loaded.joints[n] for n in ARM_JOINTS]
+        self._fingers: dict[str, tuple[JointInfo, ...]] = {
+            f: (loaded.joints[f"{f}_mcp"], loaded.joints[f"{f}_pip"]) for f in FINGER_NAMES
+        }
+        movable = sorted(loaded.joints.values(), key=lambda j: j.index)
+        self._chain = chain
+        self._q_rest = np.array([config.rest_posture_rad[n] for n in ARM_JOINTS])
+        self._arm_idx = [j.index for j in self._arm]
+        self._arm_lo = np.array([j.lower_rad for j in self._arm])
+        self._arm_hi = np.array([j.upper_rad for j in self._arm])
+        self._finger_idx = [j.index for f in FINGER_NAMES for j in self._fingers[f]]
+        self._arm_forces = [config.arm_force_nm] * len(self._arm)
+        self._arm_gains = [config.arm_position_gain] * len(self._arm)
+        self._finger_gains = [config.finger_position_gain] * len(self._finger_idx)
+        self._finger_forces = [
+            config.thumb_force_nm if f == "thumb" else config.finger_force_nm
+            for f in FINGER_NAMES
+            for _ in self._fingers[f]
+        ]
+        self._all_idx = [j.index for j in movable]
+        q_open = [JOINT_OPEN_CLOSED_RAD[j.name][0] for f in FINGER_NAMES for j in self._fingers[f]]
+        q_closed = [
+            JOINT_OPEN_CLOSED_RAD[j.name][1] for f in FINGER_NAMES for j in self._fingers[f]
+        ]
+        self._q_open = np.array(q_open)
+        self._q_closed = np.array(q_closed)
+        self._sense = np.sign(self._q_closed - self._q_open)  # +1 where closing raises q
+        self._stall_q = np.full(2 * len(FINGER_NAMES), np.nan)  # per finger joint, NaN = free
+        self._t_s = 0.0
+        self._openness_cmd = np.ones(len(FINGER_NAMES))
+        self._q_arm_cmd = self._q_rest.copy()
+        self._clamped = False
+        self._unreachable = False
+        self._ik_err_m = 0.0
+        self._ik_err_rad = 0.0
+        pb.setPhysicsEngineParameter(
+            fixedTimeStep=config.physics_dt_s,
+            numSubSteps=0,
+            numSolverIterations=config.solver_iterations,
+            physicsClientId=client,
+        )
+        for j in loaded.joints.values():
+            # no extra damping: the position motors alone shape the response (the iiwa URDF's
+            # 0.5 N m s/rad joint damping would fight the motors at every tick)
+            pb.changeDynamics(
+                self._body,
+                j.index,
+                linearDamping=0.0,
+                angularDamping=0.0,
+                jointDamping=0.0 if j.name in ARM_JOINTS else 0.01,
+                physicsClientId=client,
+            )
+        finger_links = [
+            loaded.links[f"{f}_{p}"] for f in FINGER_NAMES for p in ("proximal", "distal")
+        ]
+        for li in finger_links:
+            pb.changeDynamics(
+                self._body,
+                li,
+                lateralFriction=FINGER_FRICTION,
+                spinningFriction=0.002,
+                frictionAnchor=True,
+                physicsClientId=client,
+            )
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def body(self) -> int:
+        """PyBullet body id of the robot."""
+        return self._body
+
+    @property
+    def link_names(self) -> Mapping[int, str]:
+        """Link index -> link name (base is -1)."""
+        return self._link_names
+
+    @property
+    def finger_names(self) -> tuple[str, ...]:
+        """Finger names in the order of the openness vector."""
+        return FINGER_NAMES
+
+    def finger_joint_limits_rad(self) -> dict[str, tuple[float, float]]:
+        """(open, closed) angle of every finger joint, by joint name [rad]."""
+        return dict(JOINT_OPEN_CLOSED_RAD)
+
+    # ------------------------------------------------------------------ control
+    def reset_posture(self, p_m: Array, R: Array, openness: Array) -> None:
+        """Teleport the joints to an IK solution of a palm pose (no dynamics), motors holding.
+
+        Raises:
+            DsteleopError: if the pose is not reachable.
+        """
+        p_m = _as_vec(p_m, 3, "position")
+        g = np.clip(_as_vec(openness, len(FINGER_NAMES), "openness"), 0.0, 1.0)
+        res = self._chain.ik(
+            p_m, np.asarray(R, dtype=np.float64), self._q_rest, self._q_rest, iterations=100
+        )
+        if res.error_m > self.config.unreachable_tol_m:
+            raise DsteleopError(f"reset pose {p_m.tolist()} is not reachable")
+        self._q_arm_cmd = res.q_rad
+        for k, j in enumerate(self._arm):
+            pb.resetJointState(self._body, j.index, float(res.q_rad[k]), physicsClientId=self._c)
+        q_f = self._finger_q(g)
+        for k, idx in enumerate(self._finger_idx):
+            pb.resetJointState(self._body, idx, float(q_f[k]), physicsClientId=self._c)
+        self._t_s = 0.0
+        self._state_cache = None
+        self.release()
+        self._stall_q[:] = np.nan
+        self.set_target(p_m, R, g)
+
+    def set_target(self, position_m: Array, rotation: Array, openness: Array) -> None:
+        """Command a palm pose and finger openness; applied by the next `step()`.
+
+        Args:
+            position_m: (3,) palm position in the base frame [m]; clamped to the workspace.
+            rotation: (3, 3) palm orientation R_base_palm.
+            openness: (F,) finger openness in [0, 1], order `finger_names` (clipped).
+
+        Raises:
+            DsteleopError: on wrong shapes or non-finite values.
+        """
+        self._state_cache = None
+        p = _as_vec(position_m, 3, "position")
+        R = np.asarray(rotation, dtype=np.float64)
+        if R.shape != (3, 3) or not np.isfinite(R).all():
+            raise DsteleopError(f"rotation must be a finite 3x3 matrix, got shape {R.shape}")
+        g = np.clip(_as_vec(openness, len(FINGER_NAMES), "openness"), 0.0, 1.0)
+        # R^T R = I and det R = +1 (the triple product, not LAPACK: see kinematics._solve_spd)
+        if float(np.abs(R.T @ R - np.eye(3)).max()) > 1e-3 or _det3(R) < 0.0:
+            raise DsteleopError("rotation must be a proper rotation matrix (R^T R = I, det +1)")
+        p_c, self._clamped = self.config.workspace.clamp(p)
+        q = self._solve_ik(p_c, R, self.config.ik_iterations)
+        if np.isfinite(q).all():
+            self._q_arm_cmd = np.clip(q, self._arm_lo, self._arm_hi)
+        self._openness_cmd = g
+        pb.setJointMotorControlArray(
+            self._body,
+            self._arm_idx,
+            pb.POSITION_CONTROL,
+            targetPositions=self._q_arm_cmd.tolist(),
+            forces=self._arm_forces,
+            positionGains=self._arm_gains,
+            physicsClientId=self._c,
+        )
+        self._apply_fingers()
+
+    def _apply_fingers(self) -> None:
+        q_f = self._finger_q(self._openness_cmd)
+        # Contact stall: a finger stops where it met the object (plus a squeeze) instead of
+        # driving its pad into it; NaN entries (free fingers) leave the command as it is.
+        limit = self._stall_q + self._sense * self.config.squeeze_rad
+        q_f = np.where(self._sense * (q_f - limit) > 0.0, limit, q_f)
+        pb.setJointMotorControlArray(
+            self._body,
+            self._finger_idx,
+            pb.POSITION_CONTROL,
+            targetPositions=q_f.tolist(),
+            forces=self._finger_forces,
+            positionGains=self._finger_gains,
+            physicsClientId=self._c,
+        )
+
+    def _finger_q(self, g: Array) -> Array:
+        per_joint = np.repeat(g, 2)
+        return self._q_closed + per_joint * (self._q_open - self._q_closed)
+
+    def _solve_ik(self, p_m: Array, R: Array, iterations: int) -> Array:
+        res = self._chain.ik(
+            p_m,
+            R,
+            self._q_arm_cmd,
+            self._q_rest,
+            iterations=iterations,
+            tol_m=self.config.ik_tol_m,
+            tol_rad=self.config.ik_tol_rad,
+            damping=self.config.ik_damping_m,
+        )
+        self._ik_err_m, self._ik_err_rad = res.error_m, res.error_rad
+        self._unreachable = (
+            res.error_m > self.config.unreachable_tol_m
+            or res.error_rad > self.config.unreachable_tol_rad
+        )
+        return res.q_rad
+
+    def step(self) -> None:
+        """Advance the physics by one control tick (1/30 s) under the current targets."""
+        self._state_cache = None
+        for _ in range(self.config.substeps):
+            pb.stepSimulation(physicsClientId=self._c)
+        self._t_s += CONTROL_DT_S
+        self._contacts = self._read_contacts()
+        self._update_stall()
+        if self.config.grasp_helper:
+            self._update_helper()
+
+    def _update_stall(self) -> None:
+        """Latch each finger's joint angles when it first touches a graspable body while
+        closing; free it when its command opens past that point."""
+        touching = {
+            c.robot_link.split("_")[0] for c in self._contacts if c.other_body in self._graspable
+        }
+        q_cmd = self._finger_q(self._openness_cmd)
+        changed = False
+        states: list[tuple[float, ...]] | None = None
+        for k, f in enumerate(FINGER_NAMES):
+            sl = slice(2 * k, 2 * k + 2)
+            stalled = not np.isnan(self._stall_q[sl]).any()
+            if stalled:
+                # opened past the contact posture: the finger is free again
+                if (self._sense[sl] * (q_cmd[sl] - self._stall_q[sl]) < 0.0).all():
+                    self._stall_q[sl] = np.nan
+                    changed = True
+            elif f in touching:
+                if states is None:
+                    states = pb.getJointStates(
+                        self._body, self._finger_idx, physicsClientId=self._c
+                    )
+                q_now = np.array([states[2 * k][0], states[2 * k + 1][0]])
+                if (self._sense[sl] * (q_cmd[sl] - q_now) > 0.0).any():  # still closing
+                    self._stall_q[sl] = q_now
+                    changed = True
+        if changed:
+            self._apply_fingers()
+
+    def _closed(self) -> tuple[bool, frozenset[str]]:
+        thr = self.config.helper_openness
+        closed = {f for f, g in zip(FINGER_NAMES, self._openness_cmd, strict=True) if g <= thr}
+        return "thumb" in closed and len(closed) > 1, frozenset(closed)
+
+    def _update_helper(self) -> None:
+        closed, fingers = self._closed()
+        if self._helper_cid is not None:
+            if not closed:
+                self.release()
+            return
+        if not closed:
+            return
+        touching: dict[int, set[str]] = {}
+        for c in self._contacts:
+            if c.other_body in self._graspable:
+                touching.setdefault(c.other_body, set()).add(c.robot_link.split("_")[0])
+        for body, links in touching.items():
+            fs = links & fingers
+            if "thumb" in fs and len(fs) > 1:
+                self._engage(body)
+                return
+
+    def _engage(self, body: int) -> None:
+        """Fix `body` to the palm at its current relative pose (both COM frames)."""
+        ls = pb.getLinkState(self._body, self._palm, physicsClientId=self._c)
+        p_wp, q_wp = ls[0], ls[1]
+        p_wb, q_wb = pb.getBasePositionAndOrientation(body, physicsClientId=self._c)
+        inv_p, inv_q = pb.invertTransform(p_wp, q_wp)
+        p_pb, q_pb = pb.multiplyTransforms(inv_p, inv_q, p_wb, q_wb)
+        self._helper_cid = pb.createConstraint(
+            self._body,
+            self._palm,
+            body,
+            -1,
+            pb.JOINT_FIXED,
+            (0.0, 0.0, 0.0),
+            parentFramePosition=p_pb,
+            childFramePosition=(0.0, 0.0, 0.0),
+            parentFrameOrientation=q_pb,
+            childFrameOrientation=(0.0, 0.0, 0.0, 1.0),
+            physicsClientId=self._c,
+        )
+        pb.changeConstraint(
+            self._helper_cid, maxForce=self.config.helper_max_force_n, physicsClientId=self._c
+        )
+        self._held = body
+        log.debug("grasp helper engaged on body %d", body)
+
+    def release(self) -> None:
+        """Remove the grasp helper constraint, if engaged."""
+        if self._helper_cid is not None:
+            pb.removeConstraint(self._helper_cid, physicsClientId=self._c)
+            log.debug("grasp helper released body %s", self._held)
+        self._helper_cid = None
+        self._held = None
+        self._state_cache = None
+
+    def reset_clock(self) -> None:
+        """Restart the simulated time at 0 (after the scene settled)."""
+        self._t_s = 0.0
+        self._state_cache = None
+
+    @property
+    def state_time_s(self) -> float:
+        """Simulated time since the last reset [s]."""
+        return self._t_s
+
+    # ------------------------------------------------------------------ read-back
+    def palm_pose(self) -> tuple[Array, Array]:
+        """Achieved palm pose (p [m], R_base_palm) by forward kinematics."""
+        ls = pb.getLinkState(
+            self._body, self._palm, computeForwardKinematics=True, physicsClientId=self._c
+        )
+        return np.array(ls[4], dtype=np.float64), R_from_quat_xyzw(ls[5])
+
+    def openness_measured(self, q_by_index: Mapping[int, float] | None = None) -> Array:
+        """Openness of each finger from its joint angles, mean over its joints, in [0, 1]."""
+        if q_by_index is None:
+            states = pb.getJointStates(self._body, self._finger_idx, physicsClientId=self._c)
+            q = np.array([s[0] for s in states])
+        else:
+            q = np.array([q_by_index[i] for i in self._finger_idx])
+        g = (q - self._q_closed) / (self._q_open - self._q_closed)
+        return np.asarray(np.clip(0.5 * (g[0::2] + g[1::2]), 0.0, 1.0))  # mean of mcp, pip
+
+    def contacts(self) -> tuple[Contact, ...]:
+        """Contact points of the robot's links with other bodies, as of the last step."""
+        return self._contacts
+
+    def _read_contacts(self) -> tuple[Contact, ...]:
+        out = []
+        for c in pb.getContactPoints(bodyA=self._body, physicsClientId=self._c):
+            if c[2] == self._body:
+                continue
+            out.append(
+                Contact(
+                    self._link_names.get(c[3], str(c[3])),
+                    int(c[2]),
+                    self._names.get(int(c[2]), str(c[2])),
+                    (float(c[5][0]), float(c[5][1]), float(c[5][2])),
+                    float(c[9]),
+                )
+            )
+        return tuple(out)
+
+    def state(self) -> RobotState:
+        """The achieved state after the last tick (see `RobotState`); cached until the next
+        `set_target`, `step` or reset."""
+        if self._state_cache is None:
+            self._state_cache = self._read_state()
+        return self._state_cache
+
+    def _read_state(self) -> RobotState:
+        p, R = self.palm_pose()
+        states = pb.getJointStates(self._body, self._all_idx, physicsClientId=self._c)
+        q_by_index = {i: float(s[0]) for i, s in zip(self._all_idx, states, strict=True)}
+        joints = {n: q_by_index[j.index] for n, j in self._r.joints.items()}
+        if not (np.isfinite(p).all() and np.isfinite(R).all()):  # pragma: no cover - guard
+            raise DsteleopError("simulation diverged: palm pose is not finite")
+        return RobotState(
+            palm=HandState(p, R, self._openness_cmd.copy()),
+            openness_measured=self.openness_measured(q_by_index),
+            joint_positions_rad=MappingProxyType(joints),
+            contacts=self._contacts,
+            target_clamped=self._clamped,
+            unreachable=self._unreachable,
+            ik_error_m=self._ik_err_m,
+            ik_error_rad=self._ik_err_rad,
+            grasped=None if self._held is None else self._names.get(self._held, str(self._held)),
+            t_s=self._t_s,
+        )

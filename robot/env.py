@@ -1,0 +1,376 @@
+"""The kitchen environment: robot + world + task in one PyBullet DIRECT client.
+
+The control loop drives it exactly like this (30 Hz, dt = 1/30 s):
+
+    env = KitchenEnv()
+    state = env.reset(utensil="spoon", seed=0)
+    while env.task.outcome is None:
+        step = arbiter.step(...)  # X_goal = env.task.goal, X_start = env.task.X_start
+        env.set_target(step.X_next.position, step.X_next.rotation, step.X_next.openness)
+        state = env.step()        # 1/30 s of physics, then the task's bookkeeping
+        X_current = state.palm
+
+`reset` rebuilds the whole simulation (resetSimulation + load), so the same seed and the same
+commands give the same run bit for bit. A viewer calls `geometry()` once per reset and
+`poses()` each tick.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+import pybullet as pb
+from numpy.typing import NDArray
+
+from dsteleop.errors import DsteleopError
+from dsteleop.robot.arm import CONTROL_DT_S, Robot, RobotConfig, RobotState
+from dsteleop.robot.hand_urdf import FINGER_NAMES
+from dsteleop.robot.kinematics import ArmChain
+from dsteleop.robot.model import ARM_JOINTS, LoadedRobot, load_robot, robot_urdf_text
+from dsteleop.robot.scene import SceneGeometry, ScenePoses, VisualGeometry, VisualKind
+from dsteleop.robot.task import (
+    PickPlaceTask,
+    Region,
+    SceneRegions,
+    TaskConfig,
+    TaskEvent,
+    TaskObservation,
+)
+from dsteleop.robot.world import (
+    BIN_CENTER_M,
+    BIN_INNER_HALF_M,
+    FLOOR_Z_M,
+    HOLDER_CENTER_M,
+    HOLDER_HALF_M,
+    TABLE_TOP_Z_M,
+    UTENSIL_NAMES,
+    UTENSILS,
+    R_from_quat_xyzw,
+    T_utensil_grasp,
+    WorldBodies,
+    build_world,
+    quat_wxyz_from_R,
+)
+
+Array = NDArray[np.float64]
+log = logging.getLogger(__name__)
+
+GRAVITY_MPS2 = 9.81
+R_PALM_DOWN = np.diag([-1.0, 1.0, -1.0])
+"""Palm pointing down (palm z = -base z), finger row along base x: the home orientation."""
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Environment settings.
+
+    Attributes:
+        robot: control and physics settings of the robot.
+        task: task settings (goal noise, timeout, ...).
+        home_position_m: palm position at reset, above the holder [m].
+        place_position_m: true place goal: palm above the bin centre [m].
+        settle_s: simulated time the scene settles after a reset, robot holding home [s].
+    """
+
+    robot: RobotConfig = field(default_factory=RobotConfig)
+    task: TaskConfig = field(default_factory=TaskConfig)
+    home_position_m: tuple[float, float, float] = (0.58, 0.30, 0.50)
+    place_position_m: tuple[float, float, float] = (BIN_CENTER_M[0], BIN_CENTER_M[1], 0.45)
+    settle_s: float = 1.0
+
+
+def _regions() -> SceneRegions:
+    h = BIN_INNER_HALF_M
+    bx, by = BIN_CENTER_M
+    hx, hy = HOLDER_CENTER_M
+    return SceneRegions(
+        bin_inner=Region((bx - h, by - h, TABLE_TOP_Z_M), (bx + h, by + h, TABLE_TOP_Z_M + 0.4)),
+        holder=Region(
+            (hx - HOLDER_HALF_M[0], hy - HOLDER_HALF_M[1] - 0.02, TABLE_TOP_Z_M),
+            (hx + HOLDER_HALF_M[0], hy + HOLDER_HALF_M[1] + 0.02, TABLE_TOP_Z_M + 0.4),
+        ),
+        floor_below_z_m=TABLE_TOP_Z_M - 0.1,
+    )
+
+
+class KitchenEnv:
+    """Robot arm + hand, kitchen world and pick-and-place task (see module docstring).
+
+    Args:
+        config: environment settings.
+    """
+
+    def __init__(self, config: EnvConfig | None = None) -> None:
+        self.config = config or EnvConfig()
+        self._c = pb.connect(pb.DIRECT)
+        self._urdf_text = robot_urdf_text()
+        self._chain = ArmChain.from_urdf(self._urdf_text, ARM_JOINTS, "flange_to_palm")
+        self._robot: Robot | None = None
+        self._loaded: LoadedRobot | None = None
+        self._world: WorldBodies | None = None
+        self._task: PickPlaceTask | None = None
+        self._utensil_id = -1
+        self._geometry: SceneGeometry | None = None
+        self._pose_links: list[int] = []
+        self._pose_bodies: list[int] = []
+        self.last_events: list[TaskEvent] = []
+        """Events of the last `step()`."""
+
+    # ------------------------------------------------------------------ lifecycle
+    def close(self) -> None:
+        """Disconnect the physics client."""
+        if self._c >= 0:
+            pb.disconnect(physicsClientId=self._c)
+            self._c = -1
+
+    def __enter__(self) -> KitchenEnv:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def reset(self, utensil: str = "spoon", seed: int = 0) -> RobotState:
+        """Rebuild the scene, settle it, and start a run for `utensil`.
+
+        Args:
+            utensil: one of `UTENSIL_NAMES`.
+            seed: seed of the goal noise.
+
+        Returns:
+            The robot's state at the start of the run.
+
+        Raises:
+            DsteleopError: for an unknown utensil.
+        """
+        if utensil not in UTENSILS:
+            raise DsteleopError(
+                f"unknown utensil {utensil!r} (choose from {', '.join(UTENSIL_NAMES)})"
+            )
+        if self._c < 0:
+            raise DsteleopError("environment is closed")
+        c = self._c
+        pb.resetSimulation(physicsClientId=c)
+        pb.setGravity(0.0, 0.0, -GRAVITY_MPS2, physicsClientId=c)
+        self._loaded = load_robot(c, urdf_text=self._urdf_text)
+        self._world = build_world(c)
+        self._robot = Robot(
+            c,
+            self._loaded,
+            self._chain,
+            self.config.robot,
+            self._world.names,
+            tuple(self._world.utensils.values()),
+        )
+        home = np.asarray(self.config.home_position_m, dtype=np.float64)
+        self._robot.reset_posture(home, R_PALM_DOWN, np.ones(len(FINGER_NAMES)))
+        for _ in range(round(self.config.settle_s / CONTROL_DT_S)):
+            self._robot.step()
+        self._robot.reset_clock()
+        self._utensil_id = self._world.utensils[utensil]
+        p_u, R_u = self._utensil_pose()
+        p_g, R_g = T_utensil_grasp(UTENSILS[utensil])
+        pick = (p_u + R_u @ p_g, R_u @ R_g)
+        place = (np.asarray(self.config.place_position_m, dtype=np.float64), R_PALM_DOWN.copy())
+        self._task = PickPlaceTask(
+            self.config.task, utensil, pick, place, _regions(), len(FINGER_NAMES), seed
+        )
+        state = self._robot.state()
+        self._task.start(state.palm, state.t_s)
+        self._geometry = None
+        log.debug("reset: utensil=%s seed=%d", utensil, seed)
+        return state
+
+    # ------------------------------------------------------------------ access
+    @property
+    def robot(self) -> Robot:
+        """The robot (after `reset`)."""
+        if self._robot is None:
+            raise DsteleopError("call reset() first")
+        return self._robot
+
+    @property
+    def task(self) -> PickPlaceTask:
+        """The running task: goal, X_start, phase, events, outcome (after `reset`)."""
+        if self._task is None:
+            raise DsteleopError("call reset() first")
+        return self._task
+
+    @property
+    def world(self) -> WorldBodies:
+        """Body ids of the scene (after `reset`)."""
+        if self._world is None:
+            raise DsteleopError("call reset() first")
+        return self._world
+
+    @property
+    def client(self) -> int:
+        """PyBullet client id (for tests and tools inside `robot/`)."""
+        return self._c
+
+    @property
+    def dt_s(self) -> float:
+        """Control period [s]."""
+        return CONTROL_DT_S
+
+    # ------------------------------------------------------------------ control
+    def set_target(self, position_m: Array, rotation: Array, openness: Array) -> None:
+        """Command the palm pose and finger openness (see `Robot.set_target`)."""
+        self.robot.set_target(position_m, rotation, openness)
+
+    def step(self) -> RobotState:
+        """One control tick: physics, then task bookkeeping. Returns the robot state."""
+        robot = self.robot
+        robot.step()
+        state = robot.state()
+        self.last_events = self.task.update(self._observe(state))
+        return state
+
+    def state(self) -> RobotState:
+        """The robot's current state."""
+        return self.robot.state()
+
+    def _utensil_pose(self) -> tuple[Array, Array]:
+        p, q = pb.getBasePositionAndOrientation(self._utensil_id, physicsClientId=self._c)
+        return np.array(p, dtype=np.float64), R_from_quat_xyzw(q)
+
+    def _observe(self, state: RobotState) -> TaskObservation:
+        p, _ = pb.getBasePositionAndOrientation(self._utensil_id, physicsClientId=self._c)
+        name = self.task.utensil
+        touching_fingers = {
+            c.robot_link.split("_")[0] for c in state.contacts if c.other_body == self._utensil_id
+        }
+        closed = {f for f, g in zip(FINGER_NAMES, state.palm.openness, strict=True) if g <= 0.5}
+        by_fingers = "thumb" in (touching_fingers & closed) and len(touching_fingers & closed) > 1
+        return TaskObservation(
+            t_s=state.t_s,
+            palm=state.palm,
+            p_utensil_m=np.array(p, dtype=np.float64),
+            held=state.grasped == name or by_fingers,
+            touching=bool(touching_fingers)
+            or any(c.other_body == self._utensil_id for c in state.contacts),
+        )
+
+    def utensil_pose(self, name: str | None = None) -> tuple[Array, Array]:
+        """True pose (COM position [m], R) of a utensil (default: the task's)."""
+        uid = self.world.utensils[name] if name else self._utensil_id
+        p, q = pb.getBasePositionAndOrientation(uid, physicsClientId=self._c)
+        return np.array(p, dtype=np.float64), R_from_quat_xyzw(q)
+
+    # ------------------------------------------------------------------ viewer export
+    def geometry(self) -> SceneGeometry:
+        """Every frame's visual geometry (computed once per reset)."""
+        if self._geometry is None:
+            self._geometry = self._build_geometry()
+        return self._geometry
+
+    def _build_geometry(self) -> SceneGeometry:
+        robot, world, loaded = self.robot, self.world, self._loaded
+        assert loaded is not None
+        c = self._c
+        frames: list[str] = []
+        static: list[bool] = []
+        visuals: list[VisualGeometry] = []
+        link_frame: dict[int, str] = {}
+        for name, idx in sorted(loaded.links.items(), key=lambda kv: kv[1]):
+            link_frame[idx] = f"robot/{name}"
+            frames.append(f"robot/{name}")
+            static.append(idx == -1)
+        kinds: dict[int, VisualKind] = {
+            pb.GEOM_BOX: "box",
+            pb.GEOM_SPHERE: "sphere",
+            pb.GEOM_CYLINDER: "cylinder",
+            pb.GEOM_CAPSULE: "capsule",
+            pb.GEOM_MESH: "mesh",
+            pb.GEOM_PLANE: "plane",
+        }
+        for vs in pb.getVisualShapeData(robot.body, physicsClientId=c):
+            kind = kinds[vs[2]]
+            dims = tuple(float(d) for d in vs[3])
+            size: tuple[float, ...]
+            if kind == "box":
+                size = dims
+            elif kind == "sphere":
+                size = (dims[0],)
+            elif kind in ("cylinder", "capsule"):
+                size = (dims[1], dims[0])  # PyBullet reports (length, radius)
+            else:
+                size = ()
+            mesh = vs[4].decode() if kind == "mesh" else None
+            x, y, z, w = vs[6]
+            r, g, b, a = vs[7]
+            visuals.append(
+                VisualGeometry(
+                    link_frame[vs[1]],
+                    kind,
+                    size,
+                    mesh,
+                    (dims[0], dims[1], dims[2]) if kind == "mesh" else (1.0, 1.0, 1.0),
+                    (float(r), float(g), float(b), float(a)),
+                    (float(vs[5][0]), float(vs[5][1]), float(vs[5][2])),
+                    (float(w), float(x), float(y), float(z)),
+                )
+            )
+        body_frames = [(world.names[b], b) for b in (world.table, world.holder, world.bin)]
+        body_frames += [(n, b) for n, b in world.utensils.items()]
+        for name, b in body_frames:
+            frames.append(name)
+            static.append(b not in world.utensils.values())
+            for part in world.parts[b]:
+                size = part.size_m
+                visuals.append(
+                    VisualGeometry(
+                        name,
+                        part.kind,
+                        tuple(float(s) for s in size),
+                        None,
+                        (1.0, 1.0, 1.0),
+                        part.rgba,
+                        part.p_body_part_m,
+                        quat_wxyz_from_R(np.array(part.R_body_part)),
+                    )
+                )
+        frames.append("floor")
+        static.append(True)
+        visuals.append(
+            VisualGeometry(
+                "floor",
+                "plane",
+                (),
+                None,
+                (1.0, 1.0, 1.0),
+                (0.5, 0.5, 0.5, 1.0),
+                (0.0, 0.0, 0.0),
+                (1.0, 0.0, 0.0, 0.0),
+            )
+        )
+        self._pose_links = [i for i in sorted(loaded.links.values()) if i >= 0]
+        self._pose_bodies = [b for _, b in body_frames]
+        return SceneGeometry(tuple(frames), tuple(static), tuple(visuals))
+
+    def poses(self) -> ScenePoses:
+        """World pose of every frame of `geometry()` now (wxyz quaternions)."""
+        geo = self.geometry()
+        c, body = self._c, self.robot.body
+        n = len(geo.frames)
+        P = np.zeros((n, 3))
+        Q = np.zeros((n, 4))
+        Q[:, 0] = 1.0
+        # frame 0 is the robot base: the fixed-base URDF root frame is the base origin.
+        states = pb.getLinkStates(
+            body, self._pose_links, computeForwardKinematics=True, physicsClientId=c
+        )
+        k = 1
+        for st in states:
+            P[k] = st[4]
+            x, y, z, w = st[5]
+            Q[k] = (w, x, y, z)
+            k += 1
+        for b in self._pose_bodies:
+            p, (x, y, z, w) = pb.getBasePositionAndOrientation(b, physicsClientId=c)
+            P[k] = p
+            Q[k] = (w, x, y, z)
+            k += 1
+        P[k] = (0.0, 0.0, FLOOR_Z_M)
+        return ScenePoses(self.robot.state_time_s, P, Q)
