@@ -1,0 +1,391 @@
+"""Metrics of the paper's Section IV-D (DESIGN.md §4): pure numpy/scipy, no I/O, no clock.
+
+Assistance quality, per action (one tick, one (6 + F) velocity vector):
+
+    cosine distance   c = 1 - U_h . U_out / (|U_h| |U_out|)        in [0, 2]
+    agreement         ag = 1 if U_h . U_out > 0 else 0
+    ratio of agreement phi = sum(ag) / number of actions          in [0, 1]
+
+An action where |U_h| or |U_out| is 0 (at most `tol`) has no direction: it is skipped by the
+cosine distance (reported as the sum over actions and the mean per action). The ratio of
+agreement skips actions where the operator is idle (|U_h| <= tol: there is nothing to agree
+with, and a pause would otherwise count as disagreement even in manual mode); an action where
+the operator moves and the output does not counts as disagreement (U_h . U_out = 0).
+
+Success rate of s successes in n trials, with z = 1.96 for 95 %:
+
+    Laplace estimate      p_L = (s + 1) / (n + 2)
+    adjusted Wald CI      p_a = (s + z^2/2) / (n + z^2),
+                          p_a -/+ z sqrt(p_a (1 - p_a) / (n + z^2)), clipped to [0, 1]
+
+N-1 chi-squared test of two proportions s1/n1, s2/n2 (Campbell 2007; Richardson 2011), with
+the 2x2 table a = s1, b = n1 - s1, c = s2, d = n2 - s2, N = n1 + n2:
+
+    chi2 = (a d - b c)^2 (N - 1) / ((a + b)(c + d)(a + c)(b + d)),  p = P(chi2_1 > chi2)
+
+(Pearson's statistic times (N - 1) / N; 0 with p = 1 when both groups all succeed or all fail;
+with one degree of freedom P(chi2_1 > x) = erfc(sqrt(x / 2))).
+
+Trial time (positively skewed): on y = log t, the geometric mean exp(mean y) and its CI
+exp(mean y -/+ t_{0.975, n-1} sd(y) / sqrt(n)); two groups compare with a two-sample t-test on
+log t (Welch's by default, Student's pooled with equal_var=True).
+
+Trajectory distributions: the Jensen-Shannon divergence of two histograms P, Q (normalised to
+sum 1), base 2, so it is bounded in [0, 1]:
+
+    JSD(P, Q) = (KL(P || M) + KL(Q || M)) / 2,  M = (P + Q) / 2,  KL(P || M) = sum P log2(P / M)
+
+(scipy.spatial.distance.jensenshannon returns its square root, the JS *distance*.)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import special
+
+Array = NDArray[np.float64]
+
+Z95 = 1.959963984540054  # the 0.975 quantile of the standard normal
+
+
+@dataclass(frozen=True)
+class CosineDistance:
+    """Cosine distance of the actions of one or many sequences (batch shape (...)).
+
+    Attributes:
+        total: sum over the counted actions [unitless, each in [0, 2]].
+        mean: total / n_actions (nan when no action was counted).
+        n_actions: actions counted (both vectors non-zero).
+        n_skipped: actions skipped (a zero-norm vector).
+    """
+
+    total: Array
+    mean: Array
+    n_actions: NDArray[np.int64]
+    n_skipped: NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class Agreement:
+    """Ratio of agreement of one or many sequences (batch shape (...)).
+
+    Attributes:
+        ratio: n_agree / n_actions in [0, 1] (nan when no action was counted).
+        n_agree: actions with U_h . U_out > 0.
+        n_actions: actions counted (the operator moved, or all when skip_idle is False).
+    """
+
+    ratio: Array
+    n_agree: NDArray[np.int64]
+    n_actions: NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class SuccessRate:
+    """Success rate of s successes in n trials: Laplace estimate and adjusted-Wald CI."""
+
+    successes: int
+    n: int
+    laplace: float
+    ci_low: float
+    ci_high: float
+
+
+@dataclass(frozen=True)
+class ProportionTest:
+    """N-1 chi-squared test of two proportions (1 degree of freedom)."""
+
+    chi2: float
+    p_value: float
+    n: int
+
+
+@dataclass(frozen=True)
+class GeometricMean:
+    """Geometric mean of positive samples (e.g. times [s]) and the 95 % CI of the log mean."""
+
+    mean: float
+    ci_low: float
+    ci_high: float
+    n: int
+
+
+@dataclass(frozen=True)
+class TTest:
+    """Two-sample (or paired) t-test: statistic, two-sided p-value, degrees of freedom."""
+
+    t: float
+    p_value: float
+    df: float
+
+
+def action_cosine_distance(U_h: ArrayLike, U_out: ArrayLike, tol: float = 1e-9) -> Array:
+    """Cosine distance of every action, (..., D) -> (...), nan where a vector is zero.
+
+    Args:
+        U_h: operator actions (..., D), e.g. [m/s, rad/s, 1/s].
+        U_out: output actions (..., D), same units.
+        tol: norms at or below this count as zero.
+    """
+    a = np.asarray(U_h, dtype=np.float64)
+    b = np.asarray(U_out, dtype=np.float64)
+    na = np.linalg.norm(a, axis=-1)
+    nb = np.linalg.norm(b, axis=-1)
+    ok = (na > tol) & (nb > tol)
+    cos = np.einsum("...i,...i->...", a, b) / np.where(ok, na * nb, 1.0)
+    return np.where(ok, 1.0 - np.clip(cos, -1.0, 1.0), np.nan)
+
+
+def cosine_distance(
+    U_h: ArrayLike, U_out: ArrayLike, valid: ArrayLike | None = None, tol: float = 1e-9
+) -> CosineDistance:
+    """Cosine distance summed and averaged over the actions of a sequence.
+
+    Args:
+        U_h: operator actions (..., T, D), T actions of D dimensions.
+        U_out: output actions (..., T, D).
+        valid: optional (..., T) mask of the actions that belong to the sequence (padding
+            excluded); all by default.
+        tol: norms at or below this count as zero (those actions are skipped).
+
+    Returns:
+        Sums, means and counts with the batch shape (...) (0-d arrays for one sequence).
+    """
+    c = action_cosine_distance(U_h, U_out, tol)
+    mask = np.ones(c.shape, dtype=bool) if valid is None else np.asarray(valid, dtype=bool)
+    counted = mask & ~np.isnan(c)
+    total = np.where(counted, c, 0.0).sum(-1)
+    n = counted.sum(-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(n > 0, total / np.maximum(n, 1), np.nan)
+    return CosineDistance(
+        total=np.asarray(total, dtype=np.float64),
+        mean=np.asarray(mean, dtype=np.float64),
+        n_actions=np.asarray(n, dtype=np.int64),
+        n_skipped=np.asarray((mask & np.isnan(c)).sum(-1), dtype=np.int64),
+    )
+
+
+def agreement(
+    U_h: ArrayLike,
+    U_out: ArrayLike,
+    valid: ArrayLike | None = None,
+    skip_idle: bool = True,
+    tol: float = 1e-9,
+) -> Agreement:
+    """Ratio of agreement: the share of actions with U_h . U_out > 0.
+
+    Args:
+        U_h: operator actions (..., T, D).
+        U_out: output actions (..., T, D).
+        valid: optional (..., T) mask of the actions that belong to the sequence.
+        skip_idle: leave out actions where |U_h| <= tol (the operator is still).
+        tol: norm at or below which the operator counts as idle.
+
+    Returns:
+        Ratio and counts with the batch shape (...).
+    """
+    a = np.asarray(U_h, dtype=np.float64)
+    b = np.asarray(U_out, dtype=np.float64)
+    dot = np.einsum("...i,...i->...", a, b)
+    mask = np.ones(dot.shape, dtype=bool) if valid is None else np.asarray(valid, dtype=bool)
+    if skip_idle:
+        mask = mask & (np.linalg.norm(a, axis=-1) > tol)
+    n = mask.sum(-1)
+    k = (mask & (dot > 0.0)).sum(-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.where(n > 0, k / np.maximum(n, 1), np.nan)
+    return Agreement(
+        ratio=np.asarray(ratio, dtype=np.float64),
+        n_agree=np.asarray(k, dtype=np.int64),
+        n_actions=np.asarray(n, dtype=np.int64),
+    )
+
+
+def success_rate(successes: int, n: int, z: float = Z95) -> SuccessRate:
+    """Laplace estimate (s + 1) / (n + 2) with the adjusted-Wald CI (see module docstring).
+
+    Args:
+        successes: s, 0 <= s <= n.
+        n: number of trials, >= 0.
+        z: normal quantile of the interval (1.96 for 95 %).
+    """
+    s, n = _check_counts(successes, n)
+    z2 = z * z
+    p_adj = (s + z2 / 2.0) / (n + z2)
+    half = z * math.sqrt(p_adj * (1.0 - p_adj) / (n + z2))
+    return SuccessRate(
+        successes=s,
+        n=n,
+        laplace=(s + 1.0) / (n + 2.0),
+        ci_low=max(0.0, p_adj - half),
+        ci_high=min(1.0, p_adj + half),
+    )
+
+
+def n1_chi_squared(s1: int, n1: int, s2: int, n2: int) -> ProportionTest:
+    """N-1 chi-squared test between the proportions s1/n1 and s2/n2 (two-sided).
+
+    Raises:
+        ValueError: a count is negative, s > n, or a group is empty.
+    """
+    a, n1 = _check_counts(s1, n1)
+    c, n2 = _check_counts(s2, n2)
+    if n1 == 0 or n2 == 0:
+        raise ValueError("both groups need at least one trial")
+    b, d = n1 - a, n2 - c
+    N = n1 + n2
+    den = float(n1) * n2 * (a + c) * (b + d)
+    if den == 0.0:
+        return ProportionTest(chi2=0.0, p_value=1.0, n=N)
+    chi2 = float(a * d - b * c) ** 2 * (N - 1) / den
+    return ProportionTest(chi2=chi2, p_value=float(special.erfc(math.sqrt(chi2 / 2.0))), n=N)
+
+
+def geometric_mean(samples: ArrayLike, confidence: float = 0.95) -> GeometricMean:
+    """Geometric mean of positive samples and the t-interval of their log mean.
+
+    Args:
+        samples: (n,) positive values, e.g. trial times [s]; n >= 2 for an interval (with
+            n = 1 the interval is the point itself).
+        confidence: level of the interval.
+
+    Raises:
+        ValueError: empty input, or a sample that is not finite and > 0.
+    """
+    y = _logs(samples)
+    n = y.size
+    m = float(y.mean())
+    if n < 2:
+        return GeometricMean(math.exp(m), math.exp(m), math.exp(m), n)
+    se = float(y.std(ddof=1)) / math.sqrt(n)
+    half = t_quantile(0.5 + confidence / 2.0, n - 1) * se
+    return GeometricMean(math.exp(m), math.exp(m - half), math.exp(m + half), n)
+
+
+def log_t_test(a: ArrayLike, b: ArrayLike, equal_var: bool = False) -> TTest:
+    """Two-sample t-test on the logs of positive samples (e.g. trial times)."""
+    return t_test(_logs(a), _logs(b), equal_var=equal_var)
+
+
+def t_test(a: ArrayLike, b: ArrayLike, equal_var: bool = False) -> TTest:
+    """Two-sample t-test, two-sided: Welch's by default, Student's pooled with equal_var.
+
+    Raises:
+        ValueError: fewer than two samples in a group, or a non-finite sample.
+    """
+    x, y = _finite(a), _finite(b)
+    if x.size < 2 or y.size < 2:
+        raise ValueError("a t-test needs at least two samples per group")
+    n1, n2 = x.size, y.size
+    v1, v2 = float(x.var(ddof=1)), float(y.var(ddof=1))
+    diff = float(x.mean() - y.mean())
+    if equal_var:
+        df = float(n1 + n2 - 2)
+        sp2 = ((n1 - 1) * v1 + (n2 - 1) * v2) / df
+        se = math.sqrt(sp2 * (1.0 / n1 + 1.0 / n2))
+    else:
+        g1, g2 = v1 / n1, v2 / n2
+        se = math.sqrt(g1 + g2)
+        den = g1 * g1 / (n1 - 1) + g2 * g2 / (n2 - 1)
+        df = (g1 + g2) ** 2 / den if den > 0 else float(n1 + n2 - 2)
+    return _t_result(diff, se, df)
+
+
+def paired_t_test(a: ArrayLike, b: ArrayLike) -> TTest:
+    """Paired t-test of a - b (same trials under two conditions), two-sided.
+
+    Raises:
+        ValueError: different lengths, fewer than two pairs, or a non-finite sample.
+    """
+    x, y = _finite(a), _finite(b)
+    if x.shape != y.shape or x.size < 2:
+        raise ValueError("a paired t-test needs two equally long samples of at least two")
+    d = x - y
+    se = float(d.std(ddof=1)) / math.sqrt(d.size)
+    return _t_result(float(d.mean()), se, float(d.size - 1))
+
+
+def js_divergence(P: ArrayLike, Q: ArrayLike) -> float:
+    """Jensen-Shannon divergence (base 2, in [0, 1]) of two histograms of the same shape.
+
+    Args:
+        P, Q: non-negative counts or densities of any (equal) shape; each is normalised to
+            sum 1.
+
+    Raises:
+        ValueError: shapes differ, a value is negative or not finite, or a histogram is empty.
+    """
+    p = np.asarray(P, dtype=np.float64)
+    q = np.asarray(Q, dtype=np.float64)
+    if p.shape != q.shape:
+        raise ValueError(f"histograms differ in shape: {p.shape} vs {q.shape}")
+    for h in (p, q):
+        if not np.isfinite(h).all() or (h < 0).any() or h.sum() <= 0:
+            raise ValueError("histograms must be finite, non-negative and not empty")
+    p = p.ravel() / p.sum()
+    q = q.ravel() / q.sum()
+    m = 0.5 * (p + q)
+    js = 0.5 * (_kl2(p, m) + _kl2(q, m))
+    return float(min(1.0, max(0.0, js)))
+
+
+def trajectory_histogram(
+    points: ArrayLike, bins: int | tuple[int, ...], ranges: ArrayLike
+) -> NDArray[np.int64]:
+    """Counts of trajectory points in a regular grid (e.g. 3-D: x, y, heading).
+
+    Args:
+        points: (M, K) points (any leading shape is flattened to M); nan rows are dropped.
+        bins: bins per axis.
+        ranges: (K, 2) lower and upper edge per axis; points outside are dropped.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    pts = pts.reshape(-1, pts.shape[-1])
+    pts = pts[np.isfinite(pts).all(-1)]
+    rng = np.asarray(ranges, dtype=np.float64)
+    counts, _ = np.histogramdd(pts, bins=bins, range=[tuple(r) for r in rng])
+    return np.asarray(counts, dtype=np.int64)
+
+
+def t_quantile(q: float, df: float) -> float:
+    """Quantile q of Student's t with df degrees of freedom (scipy.special, no scipy.stats)."""
+    return float(special.stdtrit(df, q))
+
+
+def _kl2(p: Array, m: Array) -> float:
+    nz = p > 0
+    return float(np.sum(p[nz] * np.log2(p[nz] / m[nz])))
+
+
+def _t_result(diff: float, se: float, df: float) -> TTest:
+    if se == 0.0:
+        # No spread: equal means are no evidence of a difference; different ones are certain.
+        return TTest(0.0, 1.0, df) if diff == 0.0 else TTest(math.copysign(math.inf, diff), 0.0, df)
+    t = diff / se
+    return TTest(t, float(2.0 * special.stdtr(df, -abs(t))), df)
+
+
+def _check_counts(s: int, n: int) -> tuple[int, int]:
+    s_i, n_i = int(s), int(n)
+    if s_i != s or n_i != n or n_i < 0 or not 0 <= s_i <= n_i:
+        raise ValueError(f"need integers 0 <= successes <= n, got {s!r} of {n!r}")
+    return s_i, n_i
+
+
+def _finite(a: ArrayLike) -> Array:
+    x = np.asarray(a, dtype=np.float64).ravel()
+    if not np.isfinite(x).all():
+        raise ValueError("samples must be finite")
+    return x
+
+
+def _logs(samples: ArrayLike) -> Array:
+    x = _finite(samples)
+    if x.size == 0 or (x <= 0).any():
+        raise ValueError("need at least one sample, all > 0")
+    return np.log(x)
