@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import sys
 from collections.abc import Sequence
 
@@ -20,6 +21,11 @@ from dsteleop.errors import DsteleopError
 # name -> (module, one-line help). Add a command by adding a line here.
 COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("dsteleop.app.bench", "run benchmarks and print one JSON object"),
+    "run": ("dsteleop.app.run_cmd", "run the loop without a browser (headless or live); record"),
+    "replay": ("dsteleop.app.replay", "replay recorded sessions or videos headless; metrics"),
+    "sim": ("dsteleop.app.sim", "reproduce the paper's simulation study (S vs DS); report"),
+    "serve": ("dsteleop.app.serve", "run the live session and its browser view"),
+    "track": ("dsteleop.app.track_cmd", "track a hand in a video, images, camera or synthetic"),
 }
 
 log = logging.getLogger("dsteleop")
@@ -45,16 +51,25 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    # The matrices here are tiny (3x3 to 7x7): a BLAS thread pool only competes with the
+    # capture, tracking and control threads. Must be set before numpy loads.
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
-    # Parse the command name first, then let its module add its own options.
-    pre, _ = parser.parse_known_args(argv)
-    if pre.command is None:
+    # The command is the first argument that names one; its module adds its own options
+    # before parsing, so `dsteleop COMMAND --help` lists them.
+    command = next((a for a in argv if a in COMMANDS), None)
+    if command is None:
+        if not argv:
+            parser.print_help()
+            return 0
+        parser.parse_args(argv)  # --help, --version, or a one-line error
         parser.print_help()
         return 0
-    module = importlib.import_module(COMMANDS[pre.command][0])
+    module = importlib.import_module(COMMANDS[command][0])
     sub_action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    module.add_arguments(sub_action.choices[pre.command])
+    module.add_arguments(sub_action.choices[command])
     args = parser.parse_args(argv)
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO,
@@ -64,10 +79,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(module.run(args))
     except DsteleopError as exc:
-        print(f"dsteleop {pre.command}: error: {exc}", file=sys.stderr)
+        print(f"dsteleop {command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"dsteleop {pre.command}: interrupted", file=sys.stderr)
+        print(f"dsteleop {command}: interrupted", file=sys.stderr)
         return 130
 
 

@@ -19,7 +19,6 @@ from dsteleop.app.hand_input import TrackedHandInput
 from dsteleop.app.loop import LoopConfig, LostPolicy, TeleopLoop
 from dsteleop.app.observers import Snapshot
 from dsteleop.app.plant import KitchenPlant
-from dsteleop.app.run_cmd import run_headless
 from dsteleop.app.setup import Setup, build
 from dsteleop.app.timing import ManualClock
 from dsteleop.arbitration import HandState, Mode
@@ -88,14 +87,35 @@ def moved(start: HandState, dp: tuple[float, float, float], u: float, g: float =
 
 
 def test_autonomous_mode_reaches_the_pick_and_the_place_goal() -> None:
-    built = build(Setup(source="demo", loop=LoopConfig(mode=Mode.AUTONOMOUS), realtime=False))
+    built = build(
+        Setup(source="demo", loop=LoopConfig(mode=Mode.AUTONOMOUS), realtime=False, seed=1)
+    )
+    snaps: list[Snapshot] = []
+    sub = built.loop.broadcaster.subscribe()
+    loop = built.loop
     try:
-        run_headless(built.loop, built.demo, max_ticks=900)
-        events = [e for _, e in built.loop.events_log]
+        dt = loop.config.dt_s
+        for k in range(900):
+            loop.clock.sleep_until(k * dt)
+            loop.tick(k * dt)
+            snap = sub.latest()
+            assert snap is not None
+            snaps.append(snap)
+            if loop.outcome:
+                break
+        events = [e for _, e in loop.events_log]
     finally:
-        built.loop.close()
+        loop.close()
+    # The palm came to each goal the robot knows (the pick goal, then the place goal).
+    for phase in ("pick", "place"):
+        d = [
+            np.linalg.norm(s.X_current.position - s.X_goal.position)
+            for s in snaps
+            if s.phase == phase
+        ]
+        assert min(d) < 0.015, (phase, min(d))
     assert any(e.startswith("grasp") for e in events), events
-    assert built.loop.outcome == "success", events
+    assert loop.outcome == "success", events
 
 
 def test_manual_mode_moves_the_robot_as_the_hand_moves() -> None:
