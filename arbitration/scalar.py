@@ -1,29 +1,65 @@
-"""Scalar fast path of one unbatched tick, for the 30 Hz loop.
+"""Scalar path of one unbatched tick, for the 30 Hz loop: the whole step on Python floats.
 
-The numpy kernel in `arbiters.py` is written for a leading batch axis (thousands of
-trajectories at once); on a single state its ~100 small-array operations cost ~120 us of
-interpreter overhead. This module computes the same quantities with the same formulas (see
-`allocation.py` for the maths, eq 1-8) on Python floats, several times faster for 6 + F
-dimensions. `tests/test_arbitration_scalar.py` checks that both paths agree to 1e-9 on
-random inputs in every mode, so the batched kernel stays the reference.
+The batched kernel (`batched.py`) is written for a leading batch axis (thousands of
+trajectories at once); on a single state every numpy call costs ~1 us of interpreter and
+dispatch overhead, and a tick needs about a hundred of them. This module computes the same
+quantities with the same formulas (the maths is stated once, in `allocation.py` and
+`arbiters.py`, eq 1-8) on Python floats: kernel, DS moving windows and integration, so that one
+tick touches numpy only to read its inputs and to build its outputs.
+`tests/test_arbitration_perf_equivalence.py` checks that both paths, and a plain numpy
+reference of the formulas, agree to 1e-9 on random and edge-case inputs in every mode.
+
+Everything here is unrolled for the three translation and three rotation components; the F
+finger components are loops. States are `(position, rotation, openness)` as lists (rotation
+as three row lists), from `ndarray.tolist()`.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
-import numpy as np
-from numpy.typing import NDArray
-
-from dsteleop.arbitration.se3 import HandState
-
-Array = NDArray[np.float64]
-Mat = list[list[float]]
+Mat = Sequence[Sequence[float]]
 Vec = list[float]
+State = tuple[Vec, Mat, Vec]
 
 _SMALL = 1e-4
 _NEAR_PI = math.pi - 1e-3
+
+
+@dataclass(frozen=True)
+class Constants:
+    """Per-config constants of the scalar tick (built once per arbiter and finger count).
+
+    Attributes:
+        kt, kr, kf: gains K_r of translation, rotation, fingers [1/s].
+        vt, vr, vf: velocity limits [m/s], [rad/s], [1/s].
+        et, er, ef: eps floors of translation, rotation, fingers.
+        kappa: von Mises concentration (eq 5).
+        pm1, pq: p - 1 and p + q of eq (7).
+        scale: b (q - 1) / p, so that z = |psi_h| / sigma = |psi_h| / (max(|psi_r|, floor) scale).
+        c0: (p + q) log1p(z_m) - (p - 1) log(z_m), z_m = x_m / sigma, the mode normalisation.
+        floor: psi_robot_floor of eq (7).
+        eps_m: eps of the eq (3) denominator [m].
+    """
+
+    kt: float
+    kr: float
+    kf: float
+    vt: float
+    vr: float
+    vf: float
+    et: float
+    er: float
+    ef: float
+    kappa: float
+    pm1: float
+    pq: float
+    scale: float
+    c0: float
+    floor: float
+    eps_m: float
 
 
 def log_rel(Ra: Mat, Rb: Mat) -> tuple[float, float, float]:
@@ -62,7 +98,7 @@ def log_rel(Ra: Mat, Rb: Mat) -> tuple[float, float, float]:
     return s * vx, s * vy, s * vz
 
 
-def exp_times(w: Sequence[float], R: Mat) -> Mat:
+def exp_times(w: Sequence[float], R: Mat) -> list[list[float]]:
     """so3_exp(w) @ R for one rotation vector (same series as `se3.so3_exp`)."""
     x, y, z = w
     t2 = x * x + y * y + z * z
@@ -72,108 +108,153 @@ def exp_times(w: Sequence[float], R: Mat) -> Mat:
     else:
         a, b = math.sin(t) / t, (1.0 - math.cos(t)) / t2
     # I + a K + b K^2 with K = hat(w); K^2 = w w^T - t2 I.
-    E = (
-        (1.0 + b * (x * x - t2), -a * z + b * x * y, a * y + b * x * z),
-        (a * z + b * x * y, 1.0 + b * (y * y - t2), -a * x + b * y * z),
-        (-a * y + b * x * z, a * x + b * y * z, 1.0 + b * (z * z - t2)),
-    )
-    c0, c1, c2 = zip(*R)
-    return [[e[0] * c[0] + e[1] * c[1] + e[2] * c[2] for c in (c0, c1, c2)] for e in E]
-
-
-def _diff(A: tuple[Vec, Mat, Vec], B: tuple[Vec, Mat, Vec]) -> Vec:
-    pa, pb = A[0], B[0]
+    e00, e01, e02 = 1.0 + b * (x * x - t2), -a * z + b * x * y, a * y + b * x * z
+    e10, e11, e12 = a * z + b * x * y, 1.0 + b * (y * y - t2), -a * x + b * y * z
+    e20, e21, e22 = -a * y + b * x * z, a * x + b * y * z, 1.0 + b * (z * z - t2)
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R
     return [
-        pa[0] - pb[0],
-        pa[1] - pb[1],
-        pa[2] - pb[2],
-        *log_rel(A[1], B[1]),
-        *[x - y for x, y in zip(A[2], B[2])],
+        [e00 * r00 + e01 * r10 + e02 * r20, e00 * r01 + e01 * r11 + e02 * r21,
+         e00 * r02 + e01 * r12 + e02 * r22],
+        [e10 * r00 + e11 * r10 + e12 * r20, e10 * r01 + e11 * r11 + e12 * r21,
+         e10 * r02 + e11 * r12 + e12 * r22],
+        [e20 * r00 + e21 * r10 + e22 * r20, e20 * r01 + e21 * r11 + e22 * r21,
+         e20 * r02 + e21 * r12 + e22 * r22],
+    ]  # fmt: skip
+
+
+Kernel = tuple[Vec, Vec, Vec, Vec, Vec, Vec, Vec]
+
+
+def kernel(states: Sequence[State], c: Constants, dt: float, history: Vec | None) -> Kernel:
+    """U_human, U_robot, P_human, P_robot, psi_human, psi_robot, B_raw of one tick.
+
+    Args:
+        states: (human, human_prev, human_start, current, prev, start, goal), each
+            (position, rotation rows, openness) as lists.
+        c: constants of the config.
+        dt: tick length [s].
+        history: the eq (6) history term (6 + F), or None for zeros.
+    """
+    H, Hp, Hs, C, Cp, Cs, G = states
+    erf, exp, cos, sqrt = math.erf, math.exp, math.cos, math.sqrt
+    RH, RC, RG = H[1], C[1], G[1]
+    hx, hy, hz = H[0]
+    cx, cy, cz = C[0]
+    gx, gy, gz = G[0]
+    sx, sy, sz = Cs[0]
+    et, er, ef, kappa = c.et, c.er, c.ef, c.kappa
+    kt, kr, kf = c.kt, c.kr, c.kf
+    vt, vr, vf = c.vt, c.vr, c.vf
+    inv_dt = 1.0 / dt
+
+    # The six differences of the tick (translation t, rotation r, fingers below):
+    # goal - cur, goal - hum, hum - hum_prev, hum - hum_start, cur - prev, cur - start.
+    t_gc = (gx - cx, gy - cy, gz - cz)
+    t_gh = (gx - hx, gy - hy, gz - hz)
+    t_hp = (hx - Hp[0][0], hy - Hp[0][1], hz - Hp[0][2])
+    t_hs = (hx - Hs[0][0], hy - Hs[0][1], hz - Hs[0][2])
+    t_cp = (cx - Cp[0][0], cy - Cp[0][1], cz - Cp[0][2])
+    t_cs = (cx - sx, cy - sy, cz - sz)
+    r_gc = log_rel(RG, RC)
+    r_gh = log_rel(RG, RH)
+    r_hp = log_rel(RH, Hp[1])
+    r_hs = log_rel(RH, Hs[1])
+    r_cp = log_rel(RC, Cp[1])
+    r_cs = log_rel(RC, Cs[1])
+
+    # eq (4)/(5): P(R) from goal - cur, P(H) from goal - hum; denominators |goal - start|.
+    dx, dy, dz = abs(gx - sx), abs(gy - sy), abs(gz - sz)
+    dx, dy, dz = (dx if dx > et else et), (dy if dy > et else et), (dz if dz > et else et)
+    P_r = [
+        1.0 - erf(abs(t_gc[0]) / dx),
+        1.0 - erf(abs(t_gc[1]) / dy),
+        1.0 - erf(abs(t_gc[2]) / dz),
+        exp(kappa * (cos(r_gc[0]) - 1.0)),
+        exp(kappa * (cos(r_gc[1]) - 1.0)),
+        exp(kappa * (cos(r_gc[2]) - 1.0)),
+    ]
+    P_h = [
+        1.0 - erf(abs(t_gh[0]) / dx),
+        1.0 - erf(abs(t_gh[1]) / dy),
+        1.0 - erf(abs(t_gh[2]) / dz),
+        exp(kappa * (cos(r_gh[0]) - 1.0)),
+        exp(kappa * (cos(r_gh[1]) - 1.0)),
+        exp(kappa * (cos(r_gh[2]) - 1.0)),
     ]
 
+    # U_robot = sat(K_r (goal - cur)), U_human = sat((hum - hum_prev) / dt): translation and
+    # rotation scaled by their norms, fingers clipped alone (se3.saturate).
+    a, b, e = kt * t_gc[0], kt * t_gc[1], kt * t_gc[2]
+    n = sqrt(a * a + b * b + e * e)
+    f = vt / n if n > vt else 1.0
+    U_r = [a * f, b * f, e * f]
+    a, b, e = kr * r_gc[0], kr * r_gc[1], kr * r_gc[2]
+    n = sqrt(a * a + b * b + e * e)
+    f = vr / n if n > vr else 1.0
+    U_r += (a * f, b * f, e * f)
+    a, b, e = t_hp[0] * inv_dt, t_hp[1] * inv_dt, t_hp[2] * inv_dt
+    n = sqrt(a * a + b * b + e * e)
+    f = vt / n if n > vt else 1.0
+    U_h = [a * f, b * f, e * f]
+    a, b, e = r_hp[0] * inv_dt, r_hp[1] * inv_dt, r_hp[2] * inv_dt
+    n = sqrt(a * a + b * b + e * e)
+    f = vr / n if n > vr else 1.0
+    U_h += (a * f, b * f, e * f)
 
-def _saturate(U: Vec, v_max: Vec) -> Vec:
-    x, y, z, a, b, c = U[:6]
-    nt = math.sqrt(x * x + y * y + z * z)
-    nr = math.sqrt(a * a + b * b + c * c)
-    ft = v_max[0] / nt if nt > v_max[0] else 1.0
-    fr = v_max[3] / nr if nr > v_max[3] else 1.0
-    out = [x * ft, y * ft, z * ft, a * fr, b * fr, c * fr]
-    out += [-m if u < -m else m if u > m else u for u, m in zip(U[6:], v_max[6:])]
-    return out
+    # Fingers: the same, one loop; the finger groups' squared norms for eq (6).
+    f_hp, f_hs, f_cp, f_cs = [], [], [], []
+    q_hp = q_hs = q_cp = q_cs = 0.0
+    for g_h, g_hp, g_hs, g_c, g_cp, g_cs, g_g in zip(H[2], Hp[2], Hs[2], C[2], Cp[2], Cs[2], G[2]):
+        den = abs(g_g - g_cs)
+        den = den if den > ef else ef
+        d = g_g - g_c
+        P_r.append(1.0 - erf(abs(d) / den))
+        u = kf * d
+        U_r.append(-vf if u < -vf else vf if u > vf else u)
+        P_h.append(1.0 - erf(abs(g_g - g_h) / den))
+        d = g_h - g_hp
+        u = d * inv_dt
+        U_h.append(-vf if u < -vf else vf if u > vf else u)
+        f_hp.append(d)
+        q_hp += d * d
+        d = g_h - g_hs
+        f_hs.append(d)
+        q_hs += d * d
+        d = g_c - g_cp
+        f_cp.append(d)
+        q_cp += d * d
+        d = g_c - g_cs
+        f_cs.append(d)
+        q_cs += d * d
 
+    # eq (6): u(a, b) = d / |d| per group (0 below eps), each agent with its own states.
+    units = []
+    for (tx, ty, tz), (rx, ry, rz), fd, q in (
+        (t_hp, r_hp, f_hp, q_hp),
+        (t_hs, r_hs, f_hs, q_hs),
+        (t_cp, r_cp, f_cp, q_cp),
+        (t_cs, r_cs, f_cs, q_cs),
+    ):
+        n = sqrt(tx * tx + ty * ty + tz * tz)
+        u = [tx / n, ty / n, tz / n] if n >= et else [0.0, 0.0, 0.0]
+        n = sqrt(rx * rx + ry * ry + rz * rz)
+        u += (rx / n, ry / n, rz / n) if n >= er else (0.0, 0.0, 0.0)
+        n = sqrt(q)
+        u += [v / n for v in fd] if n >= ef else [0.0] * len(fd)
+        units.append(u)
+    u_hp, u_hs, u_cp, u_cs = units
+    vmax = [vt, vt, vt, vr, vr, vr] + [vf] * len(f_hp)
+    hist = [0.0] * len(vmax) if history is None else history
 
-def _unit(d: Vec, eps: Vec) -> Vec:
-    x, y, z, a, b, c = d[:6]
-    f = d[6:]
-    nt = math.sqrt(x * x + y * y + z * z)
-    nr = math.sqrt(a * a + b * b + c * c)
-    nf = math.sqrt(sum(v * v for v in f))
-    it = 1.0 / nt if nt >= eps[0] else 0.0
-    ir = 1.0 / nr if nr >= eps[3] else 0.0
-    out = [x * it, y * it, z * it, a * ir, b * ir, c * ir]
-    if f:
-        i_f = 1.0 / nf if nf >= eps[6] else 0.0
-        out += [v * i_f for v in f]
-    return out
-
-
-def kernel(
-    states: Sequence[HandState],
-    gains: Vec,
-    v_max: Vec,
-    eps: Vec,
-    kappa: float,
-    p: float,
-    q: float,
-    b: float,
-    floor: float,
-    dt: float,
-    history: Vec,
-) -> tuple[Vec, Vec, Vec, Vec, Vec, Vec, Vec]:
-    """U_human, U_robot, P_human, P_robot, psi_human, psi_robot, B_raw for one tick.
-
-    `states` are (human, human_prev, human_start, current, prev, start, goal), unbatched.
-    """
-    H, Hp, Hs, C, Cp, Cs, G = (
-        (s.position.tolist(), s.rotation.tolist(), s.openness.tolist()) for s in states
-    )
-    d_goal_cur = _diff(G, C)
-    d_h_hp = _diff(H, Hp)
-    d_goal_h = _diff(G, H)
-
-    U_r = _saturate([k * v for k, v in zip(gains, d_goal_cur)], v_max)
-    inv_dt = 1.0 / dt
-    U_h = _saturate([v * inv_dt for v in d_h_hp], v_max)
-
-    # Denominators of eq (4): |goal - start| floored at eps (rotation entries unused).
-    den = [max(abs(G[0][i] - Cs[0][i]), eps[i]) for i in range(3)] + [1.0, 1.0, 1.0]
-    den += [max(abs(x - y), e) for x, y, e in zip(G[2], Cs[2], eps[6:])]
-    erf, exp, cos = math.erf, math.exp, math.cos
-
-    def allocation(d: Vec) -> Vec:
-        out = [1.0 - erf(abs(v) / m) for v, m in zip(d, den)]
-        out[3:6] = [exp(kappa * (cos(v) - 1.0)) for v in d[3:6]]
-        return out
-
-    P_r, P_h = allocation(d_goal_cur), allocation(d_goal_h)
-
-    # eq (6), each agent with its own previous and start states.
-    u_cp = _unit(_diff(C, Cp), eps)
-    u_cs = _unit(_diff(C, Cs), eps)
-    u_hp = _unit(d_h_hp, eps)
-    u_hs = _unit(_diff(H, Hs), eps)
-    psi_r = [u / m - a - s + h for u, m, a, s, h in zip(U_r, v_max, u_cp, u_cs, history)]
-    psi_h = [u / m - a - s + h for u, m, a, s, h in zip(U_h, v_max, u_hp, u_hs, history)]
-
-    # eq (7), normalised beta prime.
-    scale = b * (q - 1.0) / p
-    zm = (p - 1.0) / (q + 1.0)
-    pm1, pq = p - 1.0, p + q
-    c0 = pq * math.log1p(zm) - pm1 * math.log(zm)
+    # eq (6) psi, eq (7) B: the normalised beta prime at |psi_h|, reference max(|psi_r|, floor).
+    pm1, pq, c0, floor, scale = c.pm1, c.pq, c.c0, c.floor, c.scale
     log, log1p = math.log, math.log1p
-    B = []
-    for ph, pr in zip(psi_h, psi_r):
+    psi_r, psi_h, B = [], [], []
+    for Ur, Uh, m, ucp, ucs, uhp, uhs, h in zip(U_r, U_h, vmax, u_cp, u_cs, u_hp, u_hs, hist):
+        pr = Ur / m - ucp - ucs + h
+        ph = Uh / m - uhp - uhs + h
+        psi_r.append(pr)
+        psi_h.append(ph)
         r = abs(pr)
         z = abs(ph) / ((r if r > floor else floor) * scale)
         z = z if z > 1e-300 else 1e-300
@@ -181,12 +262,58 @@ def kernel(
     return U_h, U_r, P_h, P_r, psi_h, psi_r, B
 
 
-def integrate(X: HandState, U: Vec, dt: float) -> HandState:
-    """Eq (2) for one state; same as `se3.integrate`."""
-    p, g = X.position.tolist(), X.openness.tolist()
-    R_next = exp_times((U[3] * dt, U[4] * dt, U[5] * dt), X.rotation.tolist())
-    return HandState(
-        np.array([p[0] + U[0] * dt, p[1] + U[1] * dt, p[2] + U[2] * dt]),
-        np.array(R_next),
-        np.array([min(max(gi + ui * dt, 0.0), 1.0) for gi, ui in zip(g, U[6:])]),
-    )
+def standard_alpha(goal: Vec, cur: Vec, start: Vec, eps_m: float) -> float:
+    """Eq (3) on one state (same as `allocation.standard_alpha`)."""
+    num = abs(goal[0] - cur[0]) + abs(goal[1] - cur[1]) + abs(goal[2] - cur[2])
+    den = abs(goal[0] - start[0]) + abs(goal[1] - start[1]) + abs(goal[2] - start[2])
+    return 1.0 - math.erf(num / (den if den > eps_m else eps_m))
+
+
+def ds_filter(
+    P_r: Vec,
+    P_h: Vec,
+    B_raw: Vec,
+    alpha_cols: list[Vec],
+    B_cols: list[Vec],
+    count: int,
+) -> tuple[Vec, Vec]:
+    """Eq (8) with the moving windows; updates the window in place.
+
+    Args:
+        P_r, P_h, B_raw: this tick's allocations and raw willingness.
+        alpha_cols, B_cols: the windows by dimension, D lists of W samples (the transposed
+            (W, D) buffers), modified in place.
+        count: alpha samples seen before this tick.
+
+    Returns:
+        (alpha, B): the filtered values.
+    """
+    W = len(B_cols[0]) if B_cols else 1
+    slot = count % W
+    inv_w = 1.0 / W
+    n = min(count + 1, W)
+    alpha, B = [], []
+    # Window sums in slot order, as numpy sums a (W, D) buffer over its first axis.
+    for cb, ca, r, h, b_raw in zip(B_cols, alpha_cols, P_r, P_h, B_raw):
+        cb[slot] = b_raw
+        b = sum(cb) * inv_w
+        a = (r - h) * b + h
+        ca[slot] = 0.0 if a < 0.0 else 1.0 if a > 1.0 else a
+        B.append(b)
+        alpha.append(sum(ca) / n)
+    return alpha, B
+
+
+def finish(
+    X: State, U_h: Vec, U_r: Vec, alpha: Vec, dt: float
+) -> tuple[Vec, tuple[Vec, list[list[float]], Vec]]:
+    """Eq (1) and (2): U_out and the integrated next state (same as `se3.integrate`)."""
+    U_out = [h + a * (r - h) for h, a, r in zip(U_h, alpha, U_r)]
+    p, R, g = X
+    R_next = exp_times((U_out[3] * dt, U_out[4] * dt, U_out[5] * dt), R)
+    p_next = [p[0] + U_out[0] * dt, p[1] + U_out[1] * dt, p[2] + U_out[2] * dt]
+    g_next = []
+    for gi, ui in zip(g, U_out[6:]):
+        v = gi + ui * dt
+        g_next.append(0.0 if v < 0.0 else 1.0 if v > 1.0 else v)
+    return U_out, (p_next, R_next, g_next)

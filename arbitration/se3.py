@@ -114,6 +114,8 @@ _VEE_J = np.array([1, 2, 0])
 def so3_log(R: Array) -> Array:
     """Rotation vector of a rotation matrix, angle in [0, pi], (..., 3, 3) -> (..., 3)."""
     R = np.asarray(R, dtype=np.float64)
+    if R.ndim != 3:
+        return so3_log(R.reshape(-1, 3, 3)).reshape((*R.shape[:-2], 3))
     cos_t = np.minimum(np.maximum((R.trace(axis1=-2, axis2=-1) - 1.0) * 0.5, -1.0), 1.0)
     theta = np.arccos(cos_t)
     # v = sin(theta) * axis, from the skew-symmetric part of R.
@@ -125,20 +127,20 @@ def so3_log(R: Array) -> Array:
         small, 1.0 + theta * theta / 6.0, theta / np.where(regular, np.sin(theta), 1.0)
     )
     out = scale[..., None] * v
-    if near_pi.any():
+    idx = np.flatnonzero(near_pi)
+    if idx.size:
         # Near pi, sin(theta) loses the axis; use the symmetric part instead:
         # a a^T = ((R + R^T) / 2 - cos(theta) I) / (1 - cos(theta)), exact for any theta.
         # Take the column of its largest diagonal entry, signed to agree with v.
-        Bm = (0.5 * (R + np.swapaxes(R, -1, -2)) - cos_t[..., None, None] * _EYE) / (
-            1.0 - cos_t[..., None, None]
-        )
+        Rn, cn = R[idx], cos_t[idx][:, None, None]
+        Bm = (0.5 * (Rn + np.swapaxes(Rn, -1, -2)) - cn * _EYE) / (1.0 - cn)
         diag = np.diagonal(Bm, axis1=-2, axis2=-1)
         k = np.argmax(diag, axis=-1)
-        col = np.take_along_axis(Bm, k[..., None, None].repeat(3, -2), -1)[..., 0]
-        dk = np.take_along_axis(diag, k[..., None], -1)
-        axis = col / np.sqrt(np.maximum(dk, 1e-300))
-        sign = np.where((axis * v).sum(-1) < 0.0, -1.0, 1.0)
-        out = np.where(near_pi[..., None], (theta * sign)[..., None] * axis, out)
+        m = np.arange(k.size)
+        col = Bm[m, :, k]
+        axis = col / np.sqrt(np.maximum(diag[m, k], 1e-300))[:, None]
+        sign = np.where((axis * v[idx]).sum(-1) < 0.0, -1.0, 1.0)
+        out[idx] = (theta[idx] * sign)[:, None] * axis
     return out
 
 
