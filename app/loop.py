@@ -32,6 +32,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 import logging
+import math
 import queue
 import sys
 import threading
@@ -57,10 +58,8 @@ from dsteleop.arbitration import (
     Mode,
     OperatorHistory,
     dim_names,
-    integrate,
     make_arbiter,
-    so3_exp,
-    so3_log,
+    scalar,
 )
 from dsteleop.arbitration.arbiters import FilterState
 from dsteleop.errors import DsteleopError
@@ -509,24 +508,31 @@ class TeleopLoop:
         return snap
 
     def _advance_reference(self, U: Array, dt: float) -> HandState:
-        """Eq (2) on the commanded reference, bounded to stay near the achieved palm."""
-        X = integrate(self.X_ref, U, dt)
-        cur = self.X_current
-        dp = X.position - cur.position
-        n = float(np.linalg.norm(dp))
-        p = (
-            X.position
-            if n <= self.config.max_lead_m
-            else cur.position + dp * (self.config.max_lead_m / n)
+        """Eq (2) on the commanded reference, bounded to stay near the achieved palm.
+
+        Scalar maths (`arbitration.scalar`): this runs every tick on one state.
+        """
+        u = U.tolist()
+        p_ref, R_ref, g_ref = (
+            self.X_ref.position.tolist(),
+            self.X_ref.rotation.tolist(),
+            self.X_ref.openness.tolist(),
         )
-        w = so3_log(X.rotation @ cur.rotation.T)
-        a = float(np.linalg.norm(w))
-        R = (
-            X.rotation
-            if a <= self.config.max_lead_rad
-            else so3_exp(w * (self.config.max_lead_rad / a)) @ cur.rotation
-        )
-        self.X_ref = HandState(p, R, X.openness)
+        p = [p_ref[i] + u[i] * dt for i in range(3)]
+        R = scalar.exp_times((u[3] * dt, u[4] * dt, u[5] * dt), R_ref)
+        g = [min(max(gi + ui * dt, 0.0), 1.0) for gi, ui in zip(g_ref, u[6:])]
+        cur_p, cur_R = self.X_current.position.tolist(), self.X_current.rotation.tolist()
+        dp = [p[i] - cur_p[i] for i in range(3)]
+        n = math.sqrt(dp[0] ** 2 + dp[1] ** 2 + dp[2] ** 2)
+        if n > self.config.max_lead_m:
+            k = self.config.max_lead_m / n
+            p = [cur_p[i] + dp[i] * k for i in range(3)]
+        w = scalar.log_rel(R, cur_R)
+        a = math.sqrt(w[0] ** 2 + w[1] ** 2 + w[2] ** 2)
+        if a > self.config.max_lead_rad:
+            k = self.config.max_lead_rad / a
+            R = scalar.exp_times((w[0] * k, w[1] * k, w[2] * k), cur_R)
+        self.X_ref = HandState(np.array(p), np.array(R), np.array(g))
         return self.X_ref
 
     def _history_term(self) -> Array:

@@ -40,6 +40,7 @@ from numpy.typing import NDArray
 
 from dsteleop.app.hand_input import HandInput, HumanInput, RecordedHandInput, RecordedInput
 from dsteleop.app.loop import LoopConfig, TeleopLoop, unpack
+from dsteleop.app.observers import Snapshot
 from dsteleop.app.recording import Session, is_session, read_session
 from dsteleop.app.timing import ManualClock
 from dsteleop.arbitration import Mode, OperatorHistory
@@ -188,16 +189,70 @@ def run_headless(
     plant = plant_from_meta(plant_meta)
     clock = ManualClock(tick_times[0] if tick_times else 0.0)
     loop = TeleopLoop(cfg, hand, plant, clock=clock, history=history)
-    records: list[dict[str, Any]] = []
+    sub = loop.broadcaster.subscribe()
+    snaps: list[Snapshot] = []
     try:
         for t in tick_times:
             clock.sleep_until(t)
-            snap = loop.tick(t)
-            records.append(loop._record(snap, loop._last_step if snap.arbitrated else None))
+            loop.tick(t)
+            snap = sub.latest()
+            assert snap is not None
+            snaps.append(snap)
     finally:
         loop.close()
     v_max = cfg.arbitration.v_max(len(plant.finger_names))
-    return _trace_from_records(name, cfg.mode.value, records, loop.dims, v_max, loop.outcome)
+    return _trace_from_snapshots(name, cfg.mode.value, snaps, loop.dims, v_max, loop.outcome)
+
+
+def _trace_from_snapshots(
+    name: str,
+    mode: str,
+    snaps: list[Snapshot],
+    dims: tuple[str, ...],
+    v_max: Array,
+    outcome: str,
+) -> Trace:
+    T, D = len(snaps), len(dims)
+    arbitrated = np.array([s.arbitrated for s in snaps], dtype=bool)
+
+    def stack(attr: str) -> Array:
+        out = np.full((T, D), np.nan)
+        for k, s in enumerate(snaps):
+            if s.arbitrated:
+                out[k] = getattr(s, attr)
+        return out
+
+    t = np.array([s.t_s for s in snaps])
+    p_h = np.array(
+        [
+            s.hand.X_human.position
+            if s.hand is not None and s.hand.X_human is not None
+            else [np.nan] * 3
+            for s in snaps
+        ]
+    ).reshape(T, 3)
+    p_r = np.array([s.X_current.position for s in snaps]).reshape(T, 3)
+    end = next((s.t_s for s in snaps if s.outcome), None)
+    t0 = float(t[0]) if T else 0.0
+    duration = float(t[-1] - t0) if T > 1 else 0.0
+    return Trace(
+        name,
+        mode,
+        t - t0,
+        arbitrated,
+        alpha=stack("alpha"),
+        P_human=stack("P_human"),
+        P_robot=stack("P_robot"),
+        B=stack("B"),
+        U_human=stack("U_human"),
+        U_out=stack("U_out"),
+        p_human=p_h,
+        p_robot=p_r,
+        outcome=outcome,
+        time_s=(end - t0) if end is not None else duration,
+        dims=dims,
+        v_max=v_max,
+    )
 
 
 def replay_session(session: Session, mode: Mode) -> Trace:
@@ -420,23 +475,34 @@ def run(args: argparse.Namespace) -> int:
         if p.suffix.lower() not in VIDEO_SUFFIXES:
             read_session(p)
     t0 = time.perf_counter()
-    items = [(str(p), tuple(modes), bool(args.as_recorded), bool(args.retrack)) for p in paths]
-    results: list[list[dict[str, Any]]] = []
+    # Work units: a recorded session replays once per mode, each mode its own unit (the
+    # modes of one session run in parallel); a video or a re-tracked session is one unit
+    # (tracked once, then run in every mode).
+    items: list[tuple[int, tuple[str, tuple[str, ...], bool, bool]]] = []
+    for i, p in enumerate(paths):
+        whole = args.as_recorded or args.retrack or p.suffix.lower() in VIDEO_SUFFIXES
+        units = [tuple(modes)] if whole else [(m,) for m in modes]
+        for u in units:
+            items.append((i, (str(p), u, bool(args.as_recorded), bool(args.retrack))))
+    by_input: dict[int, list[dict[str, Any]]] = {}
     bar = _Progress(len(items))
     if args.workers == 1 or len(items) == 1:
-        for it in items:
-            results.append(_work(it))
+        for i, it in items:
+            by_input.setdefault(i, []).extend(_work(it))
             bar.step()
     else:
+        import dsteleop.app.plant  # noqa: F401  (loaded once here; the forked workers share it)
+
         with ProcessPoolExecutor(max_workers=args.workers) as pool:
-            for res in pool.map(_work, items):
-                results.append(res)
+            for (i, _), res in zip(items, pool.map(_work, [it for _, it in items])):
+                by_input.setdefault(i, []).extend(res)
                 bar.step()
     bar.close()
     wall = time.perf_counter() - t0
     sessions = []
     all_traces = []
-    for res in results:
+    for i in sorted(by_input):
+        res = by_input[i]
         traces = [r["trace"] for r in res]
         all_traces.extend(traces)
         sessions.append(session_summary(res[0]["name"], res[0]["recorded_s"], traces))
