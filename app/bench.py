@@ -23,6 +23,10 @@ from dsteleop.errors import DsteleopError
 # group -> "module:function"; later groups register here.
 GROUPS: dict[str, str] = {
     "arbitration": "dsteleop.app.bench_arbitration:run",
+    "viewer": "dsteleop.app.bench_viewer:run",
+    "tracking": "dsteleop.app.bench_tracking:run",
+    "robot": "dsteleop.app.bench_robot:run",
+    "loop": "dsteleop.app.bench_loop:run",
 }
 
 

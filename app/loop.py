@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import json
 import logging
 import math
 import queue
@@ -262,6 +263,9 @@ class TeleopLoop:
         # (the camera-frame tee of `--record-video` listens here).
         self.on_recording: Callable[[Path | None], None] | None = None
         self.record_root: Path | None = None  # where `controls.set_recording(True)` records
+        # Called with the robot's start state after every task reset (the demo restarts).
+        self.on_task_reset: Callable[[HandState], None] | None = None
+        self._notes: list[str] = []  # operator changes, recorded as events of the next tick
         self._recorder: _Recorder | None = None
         self._stop = threading.Event()
         # Frame-to-command latency [ms] of each new frame (its first command), recent ticks.
@@ -279,6 +283,8 @@ class TeleopLoop:
 
     def _reset_task(self, utensil: str | None) -> None:
         self.X_current = self.plant.reset(utensil)
+        if getattr(self, "on_task_reset", None) is not None:
+            self.on_task_reset(self.X_current)  # type: ignore[misc]
         self.X_ref = self.X_current
         self.X_prev = self.X_current
         self.X_start = self.X_current
@@ -298,6 +304,7 @@ class TeleopLoop:
         self._filter = self.arbiter.initial_state(len(self.dims))
 
     def _apply(self, req: Requests) -> None:
+        """Apply the operator's requests (in the loop's thread); each is recorded as an event."""
         if req.empty:
             return
         if req.params:
@@ -305,23 +312,37 @@ class TeleopLoop:
         if req.mode is not None:
             try:
                 self._set_mode(Mode.parse(req.mode))
+                self._notes.append(f"mode:{self.mode.value}")
             except ValueError as exc:
                 log.warning("%s", exc)
         if req.calibrate:
             self.hand.calibrate()
+            self._notes.append("calibrate")
         if req.reset:
             self._reset_task(req.utensil)
+            self._notes.append("reset")
         if req.record is False:
             self.stop_recording()
         elif req.record is True:
-            if self.record_root is None:
-                log.warning("recording requested, but no recording folder is set (--record DIR)")
-            else:
-                import datetime
+            self._record_requested()
 
-                stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
-                utensil = self.plant.describe().get("utensil", "task")
-                self.start_recording(self.record_root / f"{stamp}-{self.mode.value}-{utensil}")
+    def _record_requested(self) -> None:
+        if self.record_root is None:
+            log.warning("recording requested, but no recording folder is set (--record DIR)")
+            return
+        import datetime
+
+        stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
+        utensil = self.plant.describe().get("utensil", "task")
+        folder = self.record_root / f"{stamp}-{self.mode.value}-{utensil}"
+        k = 1
+        while folder.exists():
+            k += 1
+            folder = self.record_root / f"{stamp}-{self.mode.value}-{utensil}-{k}"
+        try:
+            self.start_recording(folder)
+        except DsteleopError as exc:
+            log.error("could not start recording: %s", exc)
 
     def _set_params(self, params: dict[str, Any]) -> None:
         params = dict(params)
@@ -336,6 +357,8 @@ class TeleopLoop:
                 return
             self.config = dataclasses.replace(self.config, arbitration=cfg)
             self._set_mode(self.mode)
+        changed = {**params, **({} if noise is None else {"goal_noise_m": noise})}
+        self._notes.append("params:" + json.dumps(changed, sort_keys=True))
 
     # --- recording -------------------------------------------------------------------
 
@@ -459,7 +482,9 @@ class TeleopLoop:
             self._end_segment()  # the place segment ends with the outcome
         elif result.segment_changed:
             self._end_segment()
-        for e in result.events:
+        events = (*self._notes, *result.events)
+        self._notes.clear()
+        for e in events:
             self.events_log.append((self.tick_index, e))
 
         shown = step or self._last_step
@@ -493,7 +518,7 @@ class TeleopLoop:
             X_goal=goal if goal is not None else self.X_current,
             phase=result.phase,
             outcome=self.outcome,
-            events=result.events,
+            events=events,
             timing=timing,
             hand=inp,
             scene=result.scene,

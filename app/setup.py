@@ -158,6 +158,7 @@ def build(setup: Setup) -> Built:
         raise
     if demo is not None:
         demo_op = demo
+        loop.on_task_reset = demo_op.restart
         sub = loop.broadcaster.subscribe() if setup.realtime else None
         if sub is not None:
             import threading
