@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
+from numpy.typing import NDArray
 
 from dsteleop.arbitration import ArbitrationInput, HandState, so3_exp
 
@@ -12,6 +15,14 @@ finite = st.floats(-1e3, 1e3, allow_nan=False, allow_infinity=False)
 coords = st.floats(-2.0, 2.0, allow_nan=False, allow_infinity=False)
 angles = st.floats(-4.0, 4.0, allow_nan=False, allow_infinity=False)
 unit = st.floats(0.0, 1.0, allow_nan=False, allow_infinity=False)
+
+
+def input_from_states(
+    states: Sequence[HandState], dt: float, history_term: NDArray[np.float64] | None = None
+) -> ArbitrationInput:
+    """ArbitrationInput from its seven states in field order (X_human, ..., X_goal)."""
+    H, Hp, Hs, C, Cp, Cs, G = states
+    return ArbitrationInput(H, Hp, Hs, C, Cp, Cs, G, dt=dt, history_term=history_term)
 
 
 @st.composite
@@ -27,7 +38,7 @@ def hand_states(draw: st.DrawFn, n_fingers: int = 5, big: bool = False) -> HandS
 def arbitration_inputs(draw: st.DrawFn, n_fingers: int = 5, big: bool = False) -> ArbitrationInput:
     s = [draw(hand_states(n_fingers, big)) for _ in range(7)]
     dt = draw(st.sampled_from([1 / 30, 1 / 60, 0.01, 0.1]))
-    return ArbitrationInput(*s, dt=dt)
+    return input_from_states(s, dt)
 
 
 def stack_inputs(inputs: list[ArbitrationInput]) -> ArbitrationInput:
@@ -43,4 +54,4 @@ def stack_inputs(inputs: list[ArbitrationInput]) -> ArbitrationInput:
                 np.stack([x.openness for x in xs]),
             )
         )
-    return ArbitrationInput(*states, dt=inputs[0].dt)
+    return input_from_states(states, inputs[0].dt)

@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from dsteleop.arbitration import (
     ArbitrationConfig,
     ArbitrationInput,
+    ArbitrationStep,
     HandState,
     InvalidConfig,
     Mode,
@@ -25,7 +26,7 @@ from dsteleop.arbitration import (
 )
 from dsteleop.arbitration.allocation import ds_alpha, expected_allocation, willingness
 
-from .strategies import arbitration_inputs, stack_inputs
+from .strategies import arbitration_inputs, input_from_states, stack_inputs
 
 DT = 1.0 / 30.0
 F = 4
@@ -149,7 +150,7 @@ def test_standard_mode_gives_one_alpha_for_all_dims() -> None:
             )
             for _ in range(7)
         ]
-        _, r = arb.step(arb.initial_state(6 + F), ArbitrationInput(*s, dt=DT))
+        _, r = arb.step(arb.initial_state(6 + F), input_from_states(s, DT))
         assert np.ptp(r.alpha) == 0.0
         p_goal, p_cur, p_start = s[6].position, s[3].position, s[5].position
         from scipy.special import erf
@@ -160,7 +161,7 @@ def test_standard_mode_gives_one_alpha_for_all_dims() -> None:
 
 def test_manual_and_autonomous_are_the_two_baselines() -> None:
     s = [state([0.1 * i, 0.05, 0.2], [0, 0.1 * i, 0], 0.5) for i in range(7)]
-    inp = ArbitrationInput(*s, dt=DT)
+    inp = input_from_states(s, DT)
     man, aut = make_arbiter("manual"), make_arbiter("autonomous")
     _, rm = man.step(man.initial_state(10), inp)
     _, ra = aut.step(aut.initial_state(10), inp)
@@ -196,7 +197,7 @@ def run_loop(
     goal: HandState,
     history: OperatorHistory | None = None,
     segment_start: HandState | None = None,
-) -> list:
+) -> list[ArbitrationStep]:
     """Close the loop on the arbitration alone: X_next becomes the next X_current."""
     cfg = ArbitrationConfig()
     arb = make_arbiter(mode, cfg)
@@ -259,7 +260,7 @@ def test_window_one_is_eq8_unfiltered() -> None:
         state(list(rng.normal(0, 0.2, 3)), list(rng.normal(0, 1, 3)), list(rng.uniform(0, 1, F)))
         for _ in range(7)
     ]
-    inp = ArbitrationInput(*s, dt=DT)
+    inp = input_from_states(s, DT)
     arb = make_arbiter(Mode.DS, ArbitrationConfig(window=1))
     _, r = arb.step(arb.initial_state(6 + F), inp)
     np.testing.assert_allclose(r.alpha, np.clip((r.P_robot - r.P_human) * r.B + r.P_human, 0, 1))
@@ -273,8 +274,8 @@ def test_window_one_is_eq8_unfiltered() -> None:
 def test_batched_equals_single_steps(mode: Mode, inputs: list[ArbitrationInput]) -> None:
     dt = inputs[0].dt
     inputs = [
-        ArbitrationInput(
-            *[
+        input_from_states(
+            [
                 getattr(i, n)
                 for n in (
                     "X_human",
@@ -286,7 +287,7 @@ def test_batched_equals_single_steps(mode: Mode, inputs: list[ArbitrationInput])
                     "X_goal",
                 )
             ],
-            dt=dt,
+            dt,
         )
         for i in inputs
     ]
@@ -326,7 +327,7 @@ def test_ds_filter_state_over_many_steps_matches_batched() -> None:
                 HandState(rng.normal(0, 0.3, 3), so3_exp(rng.normal(0, 1, 3)), rng.uniform(0, 1, 5))
                 for _ in range(7)
             ]
-            inputs.append(ArbitrationInput(*s, dt=DT))
+            inputs.append(input_from_states(s, DT))
         fs_b, rb = arb.step(fs_b, stack_inputs(inputs))
         for k in range(n):
             fs_s[k], rs = arb.step(fs_s[k], inputs[k])
@@ -338,11 +339,9 @@ def test_no_fingers_works_for_planar_studies() -> None:
     s = [HandState.from_rotvec([0.1 * i, 0.0, 0.0], [0, 0, 0.1 * i], []) for i in range(7)]
     for mode in Mode:
         arb = make_arbiter(mode)
-        _, r = arb.step(arb.initial_state(6), ArbitrationInput(*s, dt=DT))
+        _, r = arb.step(arb.initial_state(6), input_from_states(s, DT))
         assert r.alpha.shape == (6,) and np.isfinite(r.U_out).all()
-        _, rb = arb.step(
-            arb.initial_state(6, (3,)), stack_inputs([ArbitrationInput(*s, dt=DT)] * 3)
-        )
+        _, rb = arb.step(arb.initial_state(6, (3,)), stack_inputs([input_from_states(s, DT)] * 3))
         np.testing.assert_allclose(rb.alpha[1], r.alpha, atol=1e-9)
 
 
@@ -357,7 +356,7 @@ def test_config_json_round_trip_and_validation() -> None:
     with pytest.raises(InvalidConfig, match="p must be > 1"):
         ArbitrationConfig(p=1.0)
     with pytest.raises(InvalidConfig, match="window"):
-        ArbitrationConfig(window=2.5)  # type: ignore[arg-type]
+        ArbitrationConfig(window=2.5)  # type: ignore[arg-type]  # deliberately not an int
     with pytest.raises(InvalidConfig, match="v_max_mps"):
         ArbitrationConfig(v_max_mps=float("nan"))
     with pytest.raises(InvalidConfig, match="unknown"):

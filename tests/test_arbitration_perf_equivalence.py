@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from numpy.typing import NDArray
 
 from dsteleop.arbitration import (
     ArbitrationConfig,
@@ -42,16 +43,25 @@ from dsteleop.arbitration.allocation import (
 )
 from dsteleop.arbitration.arbiters import FilterState
 
-from .strategies import arbitration_inputs, stack_inputs
+from .strategies import arbitration_inputs, input_from_states, stack_inputs
 
-FIELDS = ("alpha", "P_human", "P_robot", "B", "psi_human", "psi_robot", "U_human", "U_robot")
+FIELDS: tuple[str, ...] = (
+    "alpha",
+    "P_human",
+    "P_robot",
+    "B",
+    "psi_human",
+    "psi_robot",
+    "U_human",
+    "U_robot",
+)
 FIELDS += ("U_out",)
 NAMES = ("X_human", "X_human_prev", "X_human_start", "X_current", "X_prev", "X_start", "X_goal")
 
 
 def reference_step(
     mode: Mode, cfg: ArbitrationConfig, state: FilterState, inp: ArbitrationInput
-) -> tuple[FilterState, dict[str, np.ndarray]]:
+) -> tuple[FilterState, dict[str, NDArray[np.float64]]]:
     """The plain numpy reading of one tick (any batch shape, broadcasting states)."""
     H, Hp, Hs = inp.X_human, inp.X_human_prev, inp.X_human_start
     C, Cp, Cs, G = inp.X_current, inp.X_prev, inp.X_start, inp.X_goal
@@ -132,7 +142,7 @@ def random_input(
 ) -> ArbitrationInput:
     s = [random_state(rng, batch, F) for _ in NAMES]
     h = rng.normal(0.0, 0.3, 6 + F) if history else None
-    return ArbitrationInput(*s, dt=1.0 / 30.0, history_term=h)
+    return input_from_states(s, 1.0 / 30.0, h)
 
 
 # --- random inputs, every mode, single and batched ---------------------------------------
@@ -146,7 +156,7 @@ def test_single_step_matches_reference(
 ) -> None:
     if history:
         h = np.linspace(-0.4, 0.4, 11)
-        inp = ArbitrationInput(*[getattr(inp, n) for n in NAMES], dt=inp.dt, history_term=h)
+        inp = input_from_states([getattr(inp, n) for n in NAMES], inp.dt, h)
     assert_matches(mode, inp, ArbitrationConfig(window=window), ticks=window + 2)
 
 
@@ -194,7 +204,9 @@ def test_holding_still_small_angles_and_eps(mode: Mode, batch: tuple[int, ...]) 
     assert_matches(mode, _with(inp, X_goal=C, X_human=C, X_human_prev=C), batch=batch)
 
 
-def _near_pi_from(R: np.ndarray, rng: np.random.Generator, gap: float) -> np.ndarray:
+def _near_pi_from(
+    R: NDArray[np.float64], rng: np.random.Generator, gap: float
+) -> NDArray[np.float64]:
     """Rotations at pi - gap from R (R_b such that log(R R_b^T) has angle pi - gap)."""
     axis = rng.normal(size=(*R.shape[:-2], 3))
     axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
@@ -252,7 +264,7 @@ def test_closed_loop_single_and_batched_agree(mode: Mode) -> None:
     X = list(start)
     Xp = list(start)
     fs = [arb.initial_state(10) for _ in range(3)]
-    Xb = stack_inputs([ArbitrationInput(*[s] * 7, dt=0.05) for s in start]).X_current
+    Xb = stack_inputs([input_from_states([s] * 7, 0.05) for s in start]).X_current
     Xbp = Xb
     fsb = arb.initial_state(10, (3,))
     for k in range(40):

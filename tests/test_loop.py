@@ -13,6 +13,7 @@ from collections.abc import Callable
 
 import numpy as np
 import pytest
+from numpy.typing import NDArray
 
 from dsteleop.app.demo import DemoCamera, human_openness
 from dsteleop.app.hand_input import TrackedHandInput
@@ -47,7 +48,7 @@ def scripted_loop(
     start = plant.reset()
     camera = DemoCamera(start)
 
-    def trajectory(t: float) -> tuple[HandState, np.ndarray] | None:
+    def trajectory(t: float) -> tuple[HandState, NDArray[np.float64]] | None:
         X = path(start, t)
         if X is None:
             return None
@@ -131,7 +132,9 @@ def test_manual_mode_moves_the_robot_as_the_hand_moves() -> None:
         np.testing.assert_array_equal(s.alpha, 0.0)
         np.testing.assert_allclose(s.U_out, s.U_human)
     # The robot's achieved palm moved by the hand's motion (mapped), to a few millimetres.
-    hand_move = tracked[-1].X_human.position - tracked[0].X_human.position
+    first, last = tracked[0].X_human, tracked[-1].X_human
+    assert first is not None and last is not None
+    hand_move = last.position - first.position
     robot_move = snaps[-1].X_current.position - snaps[0].X_current.position
     np.testing.assert_allclose(hand_move, dp, atol=0.006)
     np.testing.assert_allclose(robot_move, hand_move, atol=0.006)
@@ -188,7 +191,13 @@ def test_mode_switch_while_running() -> None:
 # --- stale input ------------------------------------------------------------------------
 
 
-def palm_speeds(snaps: list[Snapshot]) -> np.ndarray:
+def u_cmd(s: Snapshot) -> NDArray[np.float64]:
+    """The commanded action of a snapshot (TeleopLoop always sets it)."""
+    assert s.U_cmd is not None
+    return s.U_cmd
+
+
+def palm_speeds(snaps: list[Snapshot]) -> NDArray[np.float64]:
     p = np.array([s.X_current.position for s in snaps])
     return np.linalg.norm(np.diff(p, axis=0), axis=1) / DT
 
@@ -296,9 +305,9 @@ def test_assist_policy_keeps_going_towards_the_goal_while_the_hand_is_lost() -> 
     assert d[-1] < d[0] - 0.05  # it kept going towards the goal
     # at reduced speed: the commanded speed is `assist_speed` of the policy's
     for s in assisting[:20]:
-        np.testing.assert_allclose(s.U_cmd, s.U_robot * loop.config.assist_speed)
+        np.testing.assert_allclose(u_cmd(s), s.U_robot * loop.config.assist_speed)
     assert (
-        max(np.linalg.norm(s.U_cmd[:3]) for s in assisting)
+        max(np.linalg.norm(u_cmd(s)[:3]) for s in assisting)
         <= loop.config.arbitration.v_max_mps * 0.5 + 1e-9
     )
 
@@ -311,7 +320,7 @@ def test_halt_policy_does_not_move_without_a_hand() -> None:
         loop.close()
     assert all(s.status == "lost" and s.reason == "no hand" for s in snaps[3:])
     assert palm_speeds(snaps).max() < 2e-3
-    assert math.isclose(float(np.linalg.norm(snaps[-1].U_cmd)), 0.0)
+    assert math.isclose(float(np.linalg.norm(u_cmd(snaps[-1]))), 0.0)
 
 
 def test_an_injected_input_delay_delays_the_robot() -> None:
@@ -322,7 +331,8 @@ def test_an_injected_input_delay_delays_the_robot() -> None:
     for delay in (0.0, 0.2):
         loop = scripted_loop(path, Mode.MANUAL)
         loop.config = dataclasses.replace(loop.config, input_delay_s=delay)
-        loop.hand.input_delay_s = delay  # type: ignore[attr-defined]
+        assert isinstance(loop.hand, TrackedHandInput)
+        loop.hand.input_delay_s = delay
         try:
             runs[delay] = run_ticks(loop, 3.0)
         finally:
@@ -355,6 +365,7 @@ def test_a_slow_observer_only_misses_snapshots() -> None:
     finally:
         loop.close()
     assert stalled.received == 60 and stalled.dropped == 59
-    assert stalled.latest().tick == 59  # newest wins, one slot
+    newest = stalled.latest()
+    assert newest is not None and newest.tick == 59  # newest wins, one slot
     assert seen == [9, 19, 29, 39, 49, 59]
     assert reader.dropped == 60 - 6

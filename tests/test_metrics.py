@@ -9,6 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
+from numpy.typing import NDArray
 from scipy import stats
 from scipy.spatial.distance import jensenshannon
 
@@ -66,7 +67,7 @@ def test_no_action_gives_nan() -> None:
 
 
 @given(vectors, vectors)
-def test_cosine_and_agreement_bounds(a: np.ndarray, b: np.ndarray) -> None:
+def test_cosine_and_agreement_bounds(a: NDArray[np.float64], b: NDArray[np.float64]) -> None:
     n = min(len(a), len(b))
     a, b = a[:n], b[:n]
     c = metrics.action_cosine_distance(a, b)
@@ -77,7 +78,9 @@ def test_cosine_and_agreement_bounds(a: np.ndarray, b: np.ndarray) -> None:
 
 
 @given(vectors, st.floats(0.01, 100.0))
-def test_identical_actions_agree_fully_and_scale_does_not_matter(a: np.ndarray, k: float) -> None:
+def test_identical_actions_agree_fully_and_scale_does_not_matter(
+    a: NDArray[np.float64], k: float
+) -> None:
     moving = np.linalg.norm(a, axis=-1) > 1e-6
     c = metrics.cosine_distance(a[moving], k * a[moving])
     assert float(c.total) == pytest.approx(0.0, abs=1e-9)
@@ -123,7 +126,7 @@ def test_success_interval_properties(s: int, extra: int) -> None:
 @pytest.mark.parametrize("bad", [(-1, 5), (6, 5), (1.5, 5), (0, -1)])
 def test_success_rate_rejects_bad_counts(bad: tuple[float, int]) -> None:
     with pytest.raises(ValueError):
-        metrics.success_rate(*bad)  # type: ignore[arg-type]
+        metrics.success_rate(*bad)  # type: ignore[arg-type]  # 1.5 is a deliberately bad count
 
 
 # --- N-1 chi-squared ------------------------------------------------------------------------
@@ -188,7 +191,9 @@ def test_log_t_test_hand_worked() -> None:
     st.booleans(),
 )
 @settings(max_examples=50)
-def test_t_test_matches_scipy(a: np.ndarray, b: np.ndarray, equal_var: bool) -> None:
+def test_t_test_matches_scipy(
+    a: NDArray[np.float64], b: NDArray[np.float64], equal_var: bool
+) -> None:
     r = metrics.t_test(a, b, equal_var=equal_var)
     assert 0.0 <= r.p_value <= 1.0
     if a.std() > 1e-6 and b.std() > 1e-6:
@@ -233,7 +238,7 @@ def test_js_divergence_hand_worked() -> None:
     hnp.arrays(np.float64, (3, 2, 2), elements=st.floats(0, 10)),
     hnp.arrays(np.float64, (3, 2, 2), elements=st.floats(0, 10)),
 )
-def test_js_divergence_properties(p: np.ndarray, q: np.ndarray) -> None:
+def test_js_divergence_properties(p: NDArray[np.float64], q: NDArray[np.float64]) -> None:
     if p.sum() <= 1e-6 or q.sum() <= 1e-6:
         return
     d = metrics.js_divergence(p, q)

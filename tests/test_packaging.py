@@ -40,7 +40,8 @@ def test_cli_help_is_instant_and_imports_nothing_heavy() -> None:
     code = (
         "import sys; from dsteleop.app import cli\n"
         "assert 'bench' in cli.build_parser().format_help()\n"
-        "print(','.join(m for m in ('mediapipe', 'pybullet', 'viser', 'cv2') if m in sys.modules))\n"
+        "print(','.join(m for m in ('mediapipe', 'pybullet', 'viser', 'cv2')"
+        " if m in sys.modules))\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == ""
@@ -107,7 +108,8 @@ def test_wheel_installs_in_a_fresh_environment_and_runs(tmp_path: Path) -> None:
     code = (
         "import importlib.util, dsteleop, dsteleop.arbitration as a, dsteleop.app.cli\n"
         "assert '/site-packages/dsteleop/' in a.__file__, a.__file__\n"
-        "assert all(importlib.util.find_spec(n) is None for n in ('app', 'robot', 'tracking', 'arbitration'))\n"
+        "assert all(importlib.util.find_spec(n) is None"
+        " for n in ('app', 'robot', 'tracking', 'arbitration'))\n"
         "import cv2, mediapipe; print(cv2.__version__)\n"
     )
     run = subprocess.run(

@@ -6,6 +6,7 @@ import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
+from numpy.typing import NDArray
 
 from dsteleop.arbitration import HandState, diff, integrate, saturate, so3_exp, so3_log
 from dsteleop.arbitration.config import ArbitrationConfig
@@ -15,26 +16,26 @@ from .strategies import hand_states
 rotvecs = arrays(np.float64, 3, elements=st.floats(-3.1, 3.1, allow_nan=False))
 
 
-def _angle_between(Ra: np.ndarray, Rb: np.ndarray) -> float:
+def _angle_between(Ra: NDArray[np.float64], Rb: NDArray[np.float64]) -> float:
     return float(np.linalg.norm(so3_log(Ra @ Rb.T)))
 
 
 @given(rotvecs)
-def test_exp_is_a_rotation(w: np.ndarray) -> None:
+def test_exp_is_a_rotation(w: NDArray[np.float64]) -> None:
     R = so3_exp(w)
     np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
     assert np.linalg.det(R) > 0.999999
 
 
 @given(rotvecs)
-def test_log_inverts_exp_below_pi(w: np.ndarray) -> None:
+def test_log_inverts_exp_below_pi(w: NDArray[np.float64]) -> None:
     if np.linalg.norm(w) >= np.pi - 1e-6:
         w = w * (np.pi - 1e-3) / np.linalg.norm(w)
     np.testing.assert_allclose(so3_log(so3_exp(w)), w, atol=1e-9)
 
 
 @given(rotvecs)
-def test_exp_of_log_is_identity_everywhere(w: np.ndarray) -> None:
+def test_exp_of_log_is_identity_everywhere(w: NDArray[np.float64]) -> None:
     R = so3_exp(w)
     np.testing.assert_allclose(so3_exp(so3_log(R)), R, atol=1e-9)
 
@@ -58,7 +59,7 @@ def test_log_batched_matches_single() -> None:
 
 
 @given(rotvecs, st.integers(-2, 2))
-def test_full_turns_change_nothing(w: np.ndarray, k: int) -> None:
+def test_full_turns_change_nothing(w: NDArray[np.float64], k: int) -> None:
     n = np.linalg.norm(w)
     if n < 1e-3:
         return
@@ -76,7 +77,7 @@ def test_integrate_inverts_diff(A: HandState, B: HandState) -> None:
 
 
 @given(arrays(np.float64, 11, elements=st.floats(-50, 50, allow_nan=False)))
-def test_saturate_bounds_norms_and_keeps_direction(U: np.ndarray) -> None:
+def test_saturate_bounds_norms_and_keeps_direction(U: NDArray[np.float64]) -> None:
     cfg = ArbitrationConfig()
     vmax = cfg.v_max(5)
     S = saturate(U, vmax)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -24,7 +25,7 @@ RECORD_KEYS = {
 SUMMARY_KEYS = {"frames", "detected", "detection_rate", "fps", "jitter"}
 
 
-def read_jsonl(path: Path) -> list[dict[str, object]]:
+def read_jsonl(path: Path) -> list[dict[str, Any]]:
     return [json.loads(line) for line in path.read_text().splitlines()]
 
 
@@ -47,10 +48,10 @@ def test_track_a_real_video_with_preview(
         assert RECORD_KEYS <= set(rec)
         assert rec["detected"] is True
         assert np.array(rec["landmarks"]).shape == (21, 3)
-        assert len(rec["position"]) == 3 and len(rec["rotvec"]) == 3  # type: ignore[arg-type]
-        assert len(rec["openness"]) == 5  # type: ignore[arg-type]
+        assert len(rec["position"]) == 3 and len(rec["rotvec"]) == 3
+        assert len(rec["openness"]) == 5
     # Frames of a file read as fast as possible carry the file's clock: seq / fps (~30 fps).
-    steps = np.diff([r["t"] for r in records])  # type: ignore[arg-type]
+    steps = np.diff([r["t"] for r in records])
     assert np.allclose(steps, steps[0], atol=1e-5) and 1 / 35 < steps[0] < 1 / 25
     cap = cv2.VideoCapture(str(preview))
     n = 0

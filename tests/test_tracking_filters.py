@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from numpy.typing import NDArray
 
 from dsteleop.arbitration import so3_exp, so3_log
 from dsteleop.tracking import HandFilterConfig, OneEuroConfig, OneEuroFilter, SO3OneEuroFilter
@@ -14,7 +15,7 @@ from dsteleop.tracking.filters import smoothing_factor
 DT = 1.0 / 30.0
 
 
-def run(flt: OneEuroFilter, xs: np.ndarray) -> np.ndarray:
+def run(flt: OneEuroFilter, xs: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.array([flt(x, k * DT) for k, x in enumerate(xs)])
 
 

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from numpy.typing import NDArray
 
 from dsteleop.arbitration import HandState, so3_exp, so3_log
 from dsteleop.tracking import (
@@ -20,7 +21,11 @@ P0 = np.array([0.0, 0.0, 0.5])
 UNIT = MappingConfig(scale=(1.0, 1.0, 1.0))
 
 
-def sample(p: np.ndarray, R: np.ndarray | None = None, g: np.ndarray | None = None) -> HandSample:
+def sample(
+    p: NDArray[np.float64],
+    R: NDArray[np.float64] | None = None,
+    g: NDArray[np.float64] | None = None,
+) -> HandSample:
     R = palm_facing_camera() if R is None else R
     g = np.ones(5) if g is None else g
     return HandSample(
@@ -157,4 +162,4 @@ def test_sample_without_pose_is_refused() -> None:
 )
 def test_mapping_config_is_validated(kwargs: dict[str, object]) -> None:
     with pytest.raises(ValueError):
-        MappingConfig(**kwargs)  # type: ignore[arg-type]
+        MappingConfig(**kwargs)  # type: ignore[arg-type]  # deliberately invalid values

@@ -6,11 +6,13 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from numpy.typing import NDArray
 
 from dsteleop.arbitration import so3_exp, so3_log
 from dsteleop.tracking import (
     CameraIntrinsics,
     Detection,
+    Handedness,
     LandmarkNoise,
     PoseConfig,
     estimate_palm_pose,
@@ -25,7 +27,9 @@ CAM = CameraIntrinsics.from_hfov(640, 480, 60.0)
 CFG = PoseConfig()
 
 
-def random_pose(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def random_pose(
+    rng: np.random.Generator,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """A hand anywhere an operator would hold it: 0.35-0.8 m away, in view, turned up to
     ~70 deg (sigma 0.5 rad per axis) from facing the camera, any finger openness."""
     z = rng.uniform(0.35, 0.8)
@@ -34,7 +38,7 @@ def random_pose(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.nd
     return p, R, rng.uniform(0.0, 1.0, 5)
 
 
-def rot_err_deg(A: np.ndarray, B: np.ndarray) -> float:
+def rot_err_deg(A: NDArray[np.float64], B: NDArray[np.float64]) -> float:
     return float(np.degrees(np.linalg.norm(so3_log(A @ B.T))))
 
 
@@ -48,13 +52,13 @@ def mirror(d: Detection) -> Detection:
 
 @pytest.mark.parametrize("hand", ["Right", "Left"])
 @pytest.mark.parametrize("use_world", [True, False])
-def test_round_trip_without_noise_is_exact(hand: str, use_world: bool) -> None:
+def test_round_trip_without_noise_is_exact(hand: Handedness, use_world: bool) -> None:
     # The model defines openness and palm size exactly as the estimator measures them, and
     # the back-projection is exact pinhole geometry: only rounding errors remain.
     rng = np.random.default_rng(1)
     for _ in range(100):
         p, R, g = random_pose(rng)
-        d = synthesize_detection(p, R, g, CAM, handedness=hand)  # type: ignore[arg-type]
+        d = synthesize_detection(p, R, g, CAM, handedness=hand)
         if not use_world:
             d = Detection(d.landmarks_image, None, d.handedness, d.score)
         est = estimate_palm_pose(d, CAM, CFG)
@@ -95,7 +99,7 @@ def test_round_trip_under_detector_noise() -> None:
     rel, ang, dg = [], [], []
     for i in range(500):
         p, R, g = random_pose(rng)
-        hand = "Right" if i % 2 else "Left"
+        hand: Handedness = "Right" if i % 2 else "Left"
         d = synthesize_detection(p, R, g, CAM, handedness=hand, noise=noise, rng=rng)
         est = estimate_palm_pose(d, CAM, CFG)
         rel.append(np.linalg.norm(est.p_cam_palm_m - p) / p[2])
@@ -171,7 +175,7 @@ def test_palm_frame_is_a_proper_rotation(values: list[float]) -> None:
 )
 def test_pose_config_is_validated(kwargs: dict[str, object]) -> None:
     with pytest.raises(ValueError):
-        PoseConfig(**kwargs)  # type: ignore[arg-type]
+        PoseConfig(**kwargs)  # type: ignore[arg-type]  # deliberately invalid values
 
 
 def test_intrinsics_projection_matches_field_of_view() -> None:

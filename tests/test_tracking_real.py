@@ -11,9 +11,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from numpy.typing import NDArray
 
 from dsteleop.errors import DsteleopError
 from dsteleop.tracking import (
+    Detection,
     DetectorConfig,
     HandSample,
     HandTracker,
@@ -68,7 +70,7 @@ def test_detection_rate_per_video(tracked: dict[str, list[HandSample]], name: st
             assert np.all((s.openness >= 0) & (s.openness <= 1))
 
 
-def median_openness(samples: list[HandSample], lo: int, hi: int) -> np.ndarray:
+def median_openness(samples: list[HandSample], lo: int, hi: int) -> NDArray[np.float64]:
     window = [s.openness for s in samples[lo:hi] if s.detected]
     assert len(window) >= (hi - lo) // 2, f"hand not seen in frames {lo}-{hi}"
     return np.median(window, axis=0)
@@ -129,9 +131,7 @@ def test_two_hands_one_followed_consistently(tracked: dict[str, list[HandSample]
     assert segments <= 2  # at most one hand-over, after the followed hand left the view
 
 
-def _detection(s: HandSample):  # type: ignore[no-untyped-def]
-    from dsteleop.tracking import Detection
-
+def _detection(s: HandSample) -> Detection:
     assert s.landmarks_image is not None and s.handedness is not None
     return Detection(s.landmarks_image, s.landmarks_world, s.handedness, s.score)
 

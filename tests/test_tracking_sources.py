@@ -11,8 +11,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from numpy.typing import NDArray
 
-from dsteleop.arbitration import so3_log
+from dsteleop.arbitration import HandState, so3_log
 from dsteleop.errors import DsteleopError
 from dsteleop.tracking import (
     Frame,
@@ -34,7 +35,7 @@ from dsteleop.tracking import (
 
 def write_video(path: Path, n: int, size: tuple[int, int] = (64, 48), fps: float = 25.0) -> None:
     """Frame k is a flat grey of level 20 k (mod 240): readable back after compression."""
-    w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
+    w = cv2.VideoWriter(str(path), cv2.VideoWriter.fourcc(*"mp4v"), fps, size)
     for k in range(n):
         w.write(np.full((size[1], size[0], 3), 20 * k % 240, dtype=np.uint8))
     w.release()
@@ -192,7 +193,7 @@ def test_tracker_on_synthetic_landmarks_filters_towards_the_truth() -> None:
 def test_lost_hand_holds_the_pose_and_reports_no_detection() -> None:
     base = scripted_trajectory()
 
-    def hides(t: float):  # type: ignore[no-untyped-def]
+    def hides(t: float) -> tuple[HandState, NDArray[np.float64]] | None:
         return None if 1.0 <= t < 2.0 else base(t)
 
     samples = [s for _, s in iter_samples(SyntheticSource(hides, duration_s=2.5), HandTracker())]

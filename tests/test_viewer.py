@@ -17,13 +17,18 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
 
 from dsteleop.app.observers import Snapshot
 from dsteleop.errors import DsteleopError
+
+if TYPE_CHECKING:
+    from dsteleop.app.loop import TeleopLoop
+    from dsteleop.app.setup import Built
+    from dsteleop.app.timing import ManualClock
 
 REPO = Path(__file__).resolve().parents[1]
 DSTELEOP = [sys.executable, "-m", "dsteleop.app.cli"]
@@ -32,11 +37,19 @@ DSTELEOP = [sys.executable, "-m", "dsteleop.app.cli"]
 # ----------------------------------------------------------------------------- fixtures
 
 
-def _demo_loop(export_scene: bool = True) -> Any:
+def _demo_loop(export_scene: bool = True) -> Built:
     from dsteleop.app.loop import LoopConfig
     from dsteleop.app.setup import Setup, build
 
     return build(Setup(source="demo", loop=LoopConfig(), realtime=False, export_scene=export_scene))
+
+
+def _manual_clock(loop: TeleopLoop) -> ManualClock:
+    """The clock of a headless loop (realtime=False), which the test advances by hand."""
+    from dsteleop.app.timing import ManualClock
+
+    assert isinstance(loop.clock, ManualClock)
+    return loop.clock
 
 
 @pytest.fixture(scope="module")
@@ -52,7 +65,7 @@ def snapshots() -> list[Snapshot]:
             snap = sub.latest()
             assert snap is not None
             out.append(snap)
-            loop.clock.advance(loop.config.dt_s)
+            _manual_clock(loop).advance(loop.config.dt_s)
     finally:
         sub.close()
         loop.close()
@@ -203,7 +216,7 @@ def test_viewer_follows_a_live_loop_and_never_posts_on_its_own() -> None:
         assert viewer.url == f"http://127.0.0.1:{viewer.port}/" and viewer.port > 0
         for _ in range(120):
             loop.tick(loop.clock.now())
-            loop.clock.advance(loop.config.dt_s)
+            _manual_clock(loop).advance(loop.config.dt_s)
             time.sleep(0.005)
         deadline = time.monotonic() + 10.0
         while viewer.stats.panel_updates < 2 and time.monotonic() < deadline:
@@ -371,6 +384,9 @@ def test_a_stalled_tab_never_slows_the_loop() -> None:
         loop.close()
     assert first is not None and last is not None and last.tick > first.tick
     rate = (last.tick - first.tick) / (last.t_s - first.t_s)
-    assert rate >= 27.0  # 30 Hz within 10 %
+    # Held, not blocked: a loop waiting on a stalled client would fall to a few Hz. The margin
+    # (80 % of 30 Hz) absorbs a shared 2-core machine; the 30 Hz / p99 jitter targets are
+    # measured by `dsteleop bench --only viewer`, not here.
+    assert rate >= 24.0
     assert viewer.stats.scene_updates - updates >= 60  # the view kept drawing (>= 15 Hz)
     assert viewer.stats.errors == 0
