@@ -33,7 +33,7 @@ def track_video(path: Path, t_capture_s: Sequence[float] | None = None) -> list[
     tracker = HandTracker()
     samples: list[HandSample] = []
     try:
-        for _frame, s in iter_samples(VideoFileSource(path, realtime=False), tracker):
+        for _frame, s in iter_samples(VideoFileSource(path, realtime=False), tracker, prefetch=2):
             samples.append(s)
     finally:
         tracker.close()
