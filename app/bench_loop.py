@@ -18,6 +18,7 @@ import dsteleop
 from dsteleop.app.hand_input import TrackedHandInput
 from dsteleop.app.loop import LoopConfig, TeleopLoop
 from dsteleop.app.plant import KitchenPlant
+from dsteleop.app.timing import raise_priority
 from dsteleop.arbitration import Mode
 from dsteleop.tracking.mapping import WorkspaceMapping
 from dsteleop.tracking.pipeline import HandTracker, TrackingStream
@@ -35,6 +36,7 @@ def shared_video() -> Path | None:
 
 def run(quick: bool = False) -> dict[str, Any]:
     seconds = 10.0 if quick else 60.0
+    raise_priority()  # as `dsteleop serve` does
     video = shared_video()
     plant = KitchenPlant("spoon", seed=0)
     if video is not None:

@@ -131,11 +131,11 @@ def run_config(
 ) -> dict[str, Any]:
     """One configuration: the demo session, `clients` clients of `kind`, measured."""
     from dsteleop.app.loop import LoopConfig
-    from dsteleop.app.serve import GIL_SWITCH_INTERVAL_S
     from dsteleop.app.setup import Setup, build
+    from dsteleop.app.timing import raise_priority
     from dsteleop.app.viewer import Viewer, ViewerConfig
 
-    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)  # as `dsteleop serve` does
+    raise_priority()  # as `dsteleop serve` does
 
     load_before = round(os.getloadavg()[0], 2)  # other work on this shared machine
     built = build(Setup(source="demo", loop=LoopConfig(), realtime=True, export_scene=True))

@@ -32,6 +32,7 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
+from dsteleop.app.timing import raise_priority
 from dsteleop.app.viewer import DEFAULT_SLIDERS, Slider, Viewer, ViewerConfig, check_port_free
 from dsteleop.arbitration import Mode
 from dsteleop.errors import DsteleopError
@@ -40,10 +41,6 @@ log = logging.getLogger(__name__)
 
 ALL_INTERFACES = ("0.0.0.0", "::", "")
 DEFAULT_RECORD_ROOT = Path("recordings")  # where "Start recording" writes without --record
-# The loop thread wakes from its sleep and must win the GIL back from the viewer, tracking
-# and server threads; with Python's default 5 ms hand-over interval that alone adds up to
-# 5 ms of start-time jitter. 1 ms keeps it small (the loop's work is not CPU-bound Python).
-GIL_SWITCH_INTERVAL_S = 0.001
 
 
 @dataclass(frozen=True)
@@ -231,7 +228,7 @@ def run(args: argparse.Namespace) -> int:
             cmd.port,
         )
     check_port_free(cmd.host, cmd.port)  # before the camera is opened
-    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
+    raise_priority()  # the loop ahead of other work on the machine (a local browser)
     loop, demo, spec = open_loop(cmd)
     viewer = None
     stop_demo = threading.Event()

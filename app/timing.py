@@ -11,6 +11,8 @@ advances only when told to.
 
 from __future__ import annotations
 
+import logging
+import os
 import threading
 import time
 from collections import deque
@@ -18,6 +20,23 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
+
+log = logging.getLogger(__name__)
+
+
+def raise_priority(niceness: int = -10) -> bool:
+    """Ask the OS to schedule this process ahead of ordinary work (a browser rendering on the
+    same cores, a build). Needs the privilege to lower niceness (root or CAP_SYS_NICE);
+    without it nothing changes and False is returned. Threads started afterwards inherit it.
+    """
+    try:
+        current = os.nice(0)
+        if current > niceness:
+            os.nice(niceness - current)
+        return True
+    except (OSError, AttributeError):
+        log.info("could not raise the process priority (needs CAP_SYS_NICE); running as is")
+        return False
 
 
 class Clock(Protocol):
