@@ -52,6 +52,7 @@ from dsteleop.app.observers import Broadcaster, Snapshot
 from dsteleop.app.recording import SessionWriter
 from dsteleop.app.timing import Clock, MonotonicClock, RateClock
 from dsteleop.arbitration import (
+    STEP_ARRAYS,
     ArbitrationConfig,
     ArbitrationInput,
     ArbitrationStep,
@@ -641,20 +642,7 @@ class TeleopLoop:
                 )
         arb = None
         if step is not None:
-            arb = {
-                k: _sig(getattr(step, k))
-                for k in (
-                    "alpha",
-                    "P_human",
-                    "P_robot",
-                    "B",
-                    "psi_human",
-                    "psi_robot",
-                    "U_human",
-                    "U_robot",
-                    "U_out",
-                )
-            }
+            arb = {k: _sig(getattr(step, k)) for k in STEP_ARRAYS}
         return {
             "k": snap.tick,
             "t": snap.t_s,

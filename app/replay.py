@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from dsteleop.app.cli_util import Progress, prepare_out_dir
 from dsteleop.app.hand_input import HandInput, HumanInput, RecordedHandInput, RecordedInput
 from dsteleop.app.loop import LoopConfig, TeleopLoop, unpack
 from dsteleop.app.observers import Snapshot
@@ -462,14 +463,7 @@ def run(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise DsteleopError(f"--workers must be >= 1, got {args.workers}")
     paths = _expand(list(args.inputs))
-    out: Path = args.out
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        probe = out / ".write-test"
-        probe.write_text("")
-        probe.unlink()
-    except OSError as exc:
-        raise DsteleopError(f"cannot write to {out}: {exc.strerror}") from exc
+    out = prepare_out_dir(Path(args.out))
     # Validate every input before the long work starts.
     for p in paths:
         if p.suffix.lower() not in VIDEO_SUFFIXES:
@@ -485,19 +479,18 @@ def run(args: argparse.Namespace) -> int:
         for u in units:
             items.append((i, (str(p), u, bool(args.as_recorded), bool(args.retrack))))
     by_input: dict[int, list[dict[str, Any]]] = {}
-    bar = _Progress(len(items))
-    if args.workers == 1 or len(items) == 1:
-        for i, it in items:
-            by_input.setdefault(i, []).extend(_work(it))
-            bar.step()
-    else:
-        import dsteleop.app.plant  # noqa: F401  (loaded once here; the forked workers share it)
+    with Progress(len(items), sys.stderr, sys.stderr.isatty(), "replay", "runs") as bar:
+        if args.workers == 1 or len(items) == 1:
+            for i, it in items:
+                by_input.setdefault(i, []).extend(_work(it))
+                bar.advance()
+        else:
+            import dsteleop.app.plant  # noqa: F401  (loaded once; the forked workers share it)
 
-        with ProcessPoolExecutor(max_workers=args.workers) as pool:
-            for (i, _), res in zip(items, pool.map(_work, [it for _, it in items])):
-                by_input.setdefault(i, []).extend(res)
-                bar.step()
-    bar.close()
+            with ProcessPoolExecutor(max_workers=args.workers) as pool:
+                for (i, _), res in zip(items, pool.map(_work, [it for _, it in items])):
+                    by_input.setdefault(i, []).extend(res)
+                    bar.advance()
     wall = time.perf_counter() - t0
     sessions = []
     all_traces = []
@@ -539,26 +532,3 @@ def run(args: argparse.Namespace) -> int:
     )
     sys.stdout.write("\n")
     return 0
-
-
-class _Progress:
-    """A one-line progress bar on stderr when it is a terminal."""
-
-    def __init__(self, total: int) -> None:
-        self.total, self.done = total, 0
-        self.tty = sys.stderr.isatty()
-        self.t0 = time.perf_counter()
-
-    def step(self) -> None:
-        self.done += 1
-        if self.tty:
-            w = 30
-            f = int(w * self.done / max(self.total, 1))
-            elapsed = time.perf_counter() - self.t0
-            bar = "#" * f + "." * (w - f)
-            sys.stderr.write(f"\rreplay [{bar}] {self.done}/{self.total} {elapsed:.1f}s")
-            sys.stderr.flush()
-
-    def close(self) -> None:
-        if self.tty:
-            sys.stderr.write("\n")

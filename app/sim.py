@@ -22,11 +22,12 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import numpy as np
 
 from dsteleop.app import sim_core
+from dsteleop.app.cli_util import Progress, prepare_out_dir
 from dsteleop.app.sim_core import (
     ChunkResult,
     SimConfig,
@@ -131,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
     cfg = config_from_args(args)
     workers = _workers(args.workers, cfg.trajectories)
-    out = _prepare_out(Path(args.out))
+    out = prepare_out_dir(Path(args.out))
     modes = ",".join(m.value for m in cfg.modes)
     log.info(
         "sim: %d trajectories, operator %s, modes %s, %d worker(s), out %s",
@@ -145,7 +146,9 @@ def run(args: argparse.Namespace) -> int:
         # Needs only the configuration: drawn while the workers simulate.
         files.extend(write_example_figures(cfg, example, out))
 
-    with Progress(cfg.trajectories * len(cfg.modes), sys.stderr, enabled=show) as bar:
+    with Progress(
+        cfg.trajectories * len(cfg.modes), sys.stderr, show, "sim", "trajectory-modes"
+    ) as bar:
         result = simulate(cfg, workers, bar, None if args.no_figures else example_figures)
     summary = sim_core.summarise(result)
     (out / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False) + "\n")
@@ -214,18 +217,6 @@ def _workers(requested: int, trajectories: int) -> int:
     return max(1, min(requested, math.ceil(trajectories / 100)))
 
 
-def _prepare_out(path: Path) -> Path:
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        probe = path / ".dsteleop-write-test"
-        probe.write_text("")
-        probe.unlink()
-    except OSError as exc:
-        reason = exc.strerror or str(exc)
-        raise DsteleopError(f"cannot write to output directory {str(path)!r}: {reason}") from None
-    return path
-
-
 # --- running over processes -----------------------------------------------------------------
 
 _QUEUE: Any = None
@@ -280,47 +271,6 @@ def simulate(
             if bar:
                 bar.advance(done)
     return merge(cfg, chunks)
-
-
-class Progress:
-    """A one-line progress bar on a terminal stream (nothing when disabled)."""
-
-    def __init__(self, total: int, stream: IO[str], enabled: bool, width: int = 30) -> None:
-        self.total, self.stream, self.enabled, self.width = max(total, 1), stream, enabled, width
-        self.done = 0
-        self.t0 = time.monotonic()
-        self._last = -1.0
-
-    def __enter__(self) -> Progress:
-        self._draw(force=True)
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        if self.enabled:
-            self._draw(force=True)
-            self.stream.write("\n")
-            self.stream.flush()
-
-    def advance(self, n: int) -> None:
-        self.done = min(self.total, self.done + int(n))
-        self._draw()
-
-    def _draw(self, force: bool = False) -> None:
-        if not self.enabled:
-            return
-        now = time.monotonic()
-        if not force and now - self._last < 0.1 and self.done < self.total:
-            return
-        self._last = now
-        frac = self.done / self.total
-        fill = round(frac * self.width)
-        bar = "#" * fill + "." * (self.width - fill)
-        msg = (
-            f"\rsim [{bar}] {frac:4.0%} {self.done}/{self.total} trajectory-modes "
-            f"{now - self.t0:5.1f} s"
-        )
-        self.stream.write(msg)
-        self.stream.flush()
 
 
 # --- outputs --------------------------------------------------------------------------------

@@ -15,6 +15,7 @@ Conventions (written down once):
 
 from dsteleop.arbitration.arbiters import (
     ARBITERS,
+    STEP_ARRAYS,
     Arbiter,
     ArbitrationInput,
     ArbitrationStep,
@@ -39,6 +40,7 @@ from dsteleop.arbitration.se3 import (
 
 __all__ = [
     "ARBITERS",
+    "STEP_ARRAYS",
     "Arbiter",
     "ArbitrationConfig",
     "ArbitrationInput",

@@ -99,6 +99,20 @@ class ArbitrationStep:
     X_next: HandState
 
 
+#: The per-dimension arrays of an `ArbitrationStep`, in the order recordings list them.
+STEP_ARRAYS = (
+    "alpha",
+    "P_human",
+    "P_robot",
+    "B",
+    "psi_human",
+    "psi_robot",
+    "U_human",
+    "U_robot",
+    "U_out",
+)
+
+
 @dataclass(frozen=True)
 class FilterState:
     """Moving-window buffers of the DS arbiter (batch shape (...), window W, dims D)."""

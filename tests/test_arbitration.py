@@ -12,6 +12,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from dsteleop.arbitration import (
+    STEP_ARRAYS,
     ArbitrationConfig,
     ArbitrationInput,
     ArbitrationStep,
@@ -295,17 +296,7 @@ def test_batched_equals_single_steps(mode: Mode, inputs: list[ArbitrationInput])
     _, batched = arb.step(arb.initial_state(11, (len(inputs),)), stack_inputs(inputs))
     for k, inp in enumerate(inputs):
         _, single = arb.step(arb.initial_state(11), inp)
-        for name in (
-            "alpha",
-            "P_human",
-            "P_robot",
-            "B",
-            "psi_human",
-            "psi_robot",
-            "U_human",
-            "U_robot",
-            "U_out",
-        ):
+        for name in STEP_ARRAYS:
             np.testing.assert_allclose(
                 getattr(single, name), getattr(batched, name)[k], rtol=1e-9, atol=1e-9, err_msg=name
             )

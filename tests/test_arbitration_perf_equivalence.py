@@ -23,6 +23,7 @@ from hypothesis import strategies as st
 from numpy.typing import NDArray
 
 from dsteleop.arbitration import (
+    STEP_ARRAYS,
     ArbitrationConfig,
     ArbitrationInput,
     HandState,
@@ -45,17 +46,7 @@ from dsteleop.arbitration.arbiters import FilterState
 
 from .strategies import arbitration_inputs, input_from_states, stack_inputs
 
-FIELDS: tuple[str, ...] = (
-    "alpha",
-    "P_human",
-    "P_robot",
-    "B",
-    "psi_human",
-    "psi_robot",
-    "U_human",
-    "U_robot",
-)
-FIELDS += ("U_out",)
+FIELDS: tuple[str, ...] = STEP_ARRAYS
 NAMES = ("X_human", "X_human_prev", "X_human_start", "X_current", "X_prev", "X_start", "X_goal")
 
 

@@ -20,7 +20,7 @@ from dsteleop.app.recording import read_session
 from dsteleop.app.replay import as_recorded, replay_session
 from dsteleop.app.run_cmd import run_headless
 from dsteleop.app.setup import HISTORY_FILE, Setup, build
-from dsteleop.arbitration import Mode, OperatorHistory
+from dsteleop.arbitration import STEP_ARRAYS, Mode, OperatorHistory
 
 CLI = [sys.executable, "-m", "dsteleop.app.cli"]
 
@@ -66,17 +66,7 @@ def test_session_files_and_metadata(ds_session: Path) -> None:
     ):
         assert key in first
     arb = next(r["arb"] for r in s.ticks if r["arb"])
-    for key in (
-        "alpha",
-        "P_human",
-        "P_robot",
-        "B",
-        "psi_human",
-        "psi_robot",
-        "U_human",
-        "U_robot",
-        "U_out",
-    ):
+    for key in STEP_ARRAYS:
         assert len(arb[key]) == len(meta["dims"])
     events = [e for r in s.ticks for e in r["events"]]
     assert any(e.startswith("grasp") for e in events)
