@@ -16,6 +16,7 @@ import glob
 import importlib
 import logging
 import math
+import sys
 import time
 from pathlib import Path
 from typing import Any, Protocol
@@ -174,18 +175,29 @@ class VideoFileSource:
 
 
 def available_cameras() -> list[str]:
-    """Cameras that open: /dev/video* device paths on Linux, else probed indices."""
+    """Cameras that open: /dev/video* device paths on Linux, else probed indices.
+
+    On Linux a machine without /dev/video* has no camera, so nothing is probed; OpenCV's own
+    log is silenced while probing (its failed opens are expected, not errors).
+    """
     cv2 = _cv2()
     devices = sorted(glob.glob("/dev/video*"))
+    if not devices and sys.platform.startswith("linux"):
+        return []
     candidates: list[str | int] = list(devices) if devices else list(_PROBE_INDICES)
     found = []
-    for cand in candidates:
-        cap = cv2.VideoCapture(cand)
-        try:
-            if cap.isOpened():
-                found.append(str(cand))
-        finally:
-            cap.release()
+    level = cv2.getLogLevel()
+    cv2.setLogLevel(0)  # silent
+    try:
+        for cand in candidates:
+            cap = cv2.VideoCapture(cand)
+            try:
+                if cap.isOpened():
+                    found.append(str(cand))
+            finally:
+                cap.release()
+    finally:
+        cv2.setLogLevel(level)
     return found
 
 
@@ -215,7 +227,12 @@ class WebcamSource:
     def open(self) -> None:
         """Open the camera (DsteleopError listing the cameras that open, if it does not)."""
         cv2 = _cv2()
-        cap = cv2.VideoCapture(self.device)
+        level = cv2.getLogLevel()
+        cv2.setLogLevel(0)  # a camera that does not open gets our one line, not OpenCV's
+        try:
+            cap = cv2.VideoCapture(self.device)
+        finally:
+            cv2.setLogLevel(level)
         if not cap.isOpened():
             cap.release()
             found = available_cameras()
