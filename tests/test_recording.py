@@ -271,3 +271,16 @@ def test_a_video_session_records_its_frames_and_replays_retracked(
     # Re-tracking the re-encoded frames gives the same hand path to a few millimetres.
     err = np.linalg.norm(trace.p_human[both] - recorded[both], axis=1)
     assert np.median(err) < 0.005, np.median(err)
+
+
+@pytest.mark.parametrize("name", ["demo-DS-spoon", "demo-S-spoon", "demo-manual-spoon"])
+def test_the_sample_sessions_are_current(name: str) -> None:
+    """The shipped sessions replay in their own mode to the alphas they recorded; when the
+    code changes what a run does, regenerate them with scripts/make_sample_sessions.sh."""
+    folder = Path(__file__).resolve().parents[1] / "recordings" / name
+    s = read_session(folder)
+    assert s.complete and s.meta["outcome"] in ("success", "failure")
+    recorded = np.array([r["arb"]["alpha"] for r in s.ticks if r["arb"]])
+    trace = replay_session(s, Mode.parse(s.meta["mode"]))
+    np.testing.assert_allclose(trace.alpha[trace.arbitrated], recorded, atol=1e-6, rtol=0)
+    assert trace.outcome == s.meta["outcome"]
