@@ -26,17 +26,31 @@ log = logging.getLogger(__name__)
 
 def raise_priority(niceness: int = -10) -> bool:
     """Ask the OS to schedule this process ahead of ordinary work (a browser rendering on the
-    same cores, a build). Needs the privilege to lower niceness (root or CAP_SYS_NICE);
-    without it nothing changes and False is returned. Threads started afterwards inherit it.
+    same cores, a build). Threads started afterwards inherit it.
+
+    Linux with autogroup scheduling (`kernel.sched_autogroup_enabled = 1`) first shares the
+    CPU between sessions, so a process's niceness only counts inside its own session: a
+    local browser (its own session) then takes half the CPU whatever our niceness. When this
+    process leads its own session (started with `setsid`), the session's autogroup is ours
+    alone and gets the same niceness; otherwise it is left as it is (it would raise every
+    process of the user's terminal). Both need root or CAP_SYS_NICE; without them nothing
+    changes and False is returned.
     """
     try:
         current = os.nice(0)
         if current > niceness:
             os.nice(niceness - current)
-        return True
     except (OSError, AttributeError):
         log.info("could not raise the process priority (needs CAP_SYS_NICE); running as is")
         return False
+    autogroup = "/proc/self/autogroup"
+    if os.path.exists(autogroup) and os.getsid(0) == os.getpid():
+        try:
+            with open(autogroup, "w") as f:
+                f.write(str(niceness))
+        except OSError:
+            log.info("could not raise the session's autogroup priority")
+    return True
 
 
 class Clock(Protocol):
