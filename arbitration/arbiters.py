@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import enum
 import functools
+import itertools
 import math
 from dataclasses import dataclass, field
 from typing import ClassVar, Protocol, TypeVar
@@ -200,13 +201,12 @@ def _scalar_step(
         alpha = [1.0 if mode is Mode.AUTONOMOUS else 0.0] * D
     U_out, (p, R, g) = scalar.finish(states[3], U_h, U_r, alpha, inp.dt)
     # One conversion to numpy for every output; the arrays are views of it.
-    flat = alpha + P_h + P_r + B + psi_h + psi_r + U_h + U_r + U_out + p + R[0] + R[1] + R[2] + g
+    parts = [alpha, P_h, P_r, B, psi_h, psi_r, U_h, U_r, U_out, p, R[0], R[1], R[2], g]
     if mode is Mode.DS:
-        for col in alpha_cols:
-            flat += col
-        for col in B_cols:
-            flat += col
-    buf = np.fromiter(flat, np.float64, len(flat))
+        parts += alpha_cols
+        parts += B_cols
+    n = sum(len(x) for x in parts)
+    buf = np.fromiter(itertools.chain.from_iterable(parts), np.float64, n)
     out = buf[: 9 * D].reshape(9, D)
     i = 9 * D + 12
     X_next = _new(
