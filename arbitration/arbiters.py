@@ -321,6 +321,19 @@ class _Base:
         would cost more than the lookup saves)."""
         return _scalar_constants(self.config)
 
+    def step(
+        self, state: FilterState, inp: ArbitrationInput
+    ) -> tuple[FilterState, ArbitrationStep]:
+        """One tick: the scalar path for one state, the batched kernel for a batch."""
+        if _unbatched(inp, state):
+            return _scalar_step(self.mode, self._constants, state, inp)
+        return self._batched(state, inp, _tick(self.config, inp))
+
+    def _batched(
+        self, state: FilterState, inp: ArbitrationInput, t: batched.Tick
+    ) -> tuple[FilterState, ArbitrationStep]:
+        raise NotImplementedError
+
 
 @dataclass(frozen=True)
 class Manual(_Base):
@@ -328,12 +341,9 @@ class Manual(_Base):
 
     mode: ClassVar[Mode] = Mode.MANUAL
 
-    def step(
-        self, state: FilterState, inp: ArbitrationInput
+    def _batched(
+        self, state: FilterState, inp: ArbitrationInput, t: batched.Tick
     ) -> tuple[FilterState, ArbitrationStep]:
-        if _unbatched(inp, state):
-            return _scalar_step(self.mode, self._constants, state, inp)
-        t = _tick(self.config, inp)
         return state, _batched_step(t, np.zeros(t.B_raw.shape), t.B_raw, inp.dt)
 
 
@@ -343,12 +353,9 @@ class Autonomous(_Base):
 
     mode: ClassVar[Mode] = Mode.AUTONOMOUS
 
-    def step(
-        self, state: FilterState, inp: ArbitrationInput
+    def _batched(
+        self, state: FilterState, inp: ArbitrationInput, t: batched.Tick
     ) -> tuple[FilterState, ArbitrationStep]:
-        if _unbatched(inp, state):
-            return _scalar_step(self.mode, self._constants, state, inp)
-        t = _tick(self.config, inp)
         return state, _batched_step(t, np.ones(t.B_raw.shape), t.B_raw, inp.dt)
 
 
@@ -358,12 +365,9 @@ class Standard(_Base):
 
     mode: ClassVar[Mode] = Mode.S
 
-    def step(
-        self, state: FilterState, inp: ArbitrationInput
+    def _batched(
+        self, state: FilterState, inp: ArbitrationInput, t: batched.Tick
     ) -> tuple[FilterState, ArbitrationStep]:
-        if _unbatched(inp, state):
-            return _scalar_step(self.mode, self._constants, state, inp)
-        t = _tick(self.config, inp)
         a = standard_alpha(
             inp.X_goal.position,
             inp.X_current.position,
@@ -382,12 +386,9 @@ class DimensionSpecific(_Base):
 
     mode: ClassVar[Mode] = Mode.DS
 
-    def step(
-        self, state: FilterState, inp: ArbitrationInput
+    def _batched(
+        self, state: FilterState, inp: ArbitrationInput, t: batched.Tick
     ) -> tuple[FilterState, ArbitrationStep]:
-        if _unbatched(inp, state):
-            return _scalar_step(self.mode, self._constants, state, inp)
-        t = _tick(self.config, inp)
         D, N = t.B_raw.shape
         W = state.B_buf.shape[-2]
         shape = (*t.batch, W, D)
