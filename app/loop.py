@@ -284,8 +284,8 @@ class TeleopLoop:
 
     def _reset_task(self, utensil: str | None) -> None:
         self.X_current = self.plant.reset(utensil)
-        if getattr(self, "on_task_reset", None) is not None:
-            self.on_task_reset(self.X_current)  # type: ignore[misc]
+        if self.on_task_reset is not None:
+            self.on_task_reset(self.X_current)
         self.X_ref = self.X_current
         self.X_prev = self.X_current
         self.X_start = self.X_current

@@ -12,6 +12,8 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
+import numpy as np
+
 from dsteleop.app.loop import PlantStep
 from dsteleop.arbitration import HandState
 from dsteleop.robot.env import EnvConfig, KitchenEnv
@@ -129,17 +131,10 @@ class KitchenPlant:
         """The true pick and place palm poses (open hand), noise-free."""
         task = self.env.task
         n = len(FINGER_NAMES)
-        import numpy as np
-
         return (
             HandState(*task.pick_true, np.ones(n)),
             HandState(*task.place_true, np.ones(n)),
         )
-
-    @property
-    def outcome_time_s(self) -> float | None:
-        o = self.env.task.outcome
-        return None if o is None else o.time_s
 
 
 def _pose(pose: tuple[Any, Any]) -> dict[str, list[float]]:
