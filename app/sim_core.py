@@ -396,7 +396,7 @@ def _simulate(
     """
     T, N = hands_tm.position.shape[:2]
     arb = make_arbiter(mode, cfg.arbitration)
-    state: Any = arb.initial_state(6, batch=(N,))
+    state = arb.initial_state(6, batch=(N,))
     X0 = planar_state(
         np.full(N, cfg.start_xy_m[0]),
         np.full(N, cfg.start_xy_m[1]),
@@ -419,7 +419,7 @@ def _simulate(
             keep = lengths[rows] > k + 1
             if keep.sum() < 0.9 * rows.size:
                 rows = rows[keep]
-                state = _take(state, keep)
+                state = state.select(keep)
                 X, Xp, X0r, H0, G = (_take(h, keep) for h in (X, Xp, X0r, H0, G))
                 pos, rot, opn = (a[k - base :, keep] for a in (pos, rot, opn))
                 base = k
@@ -459,15 +459,9 @@ def _time_major(hands: HandState) -> HandState:
     )
 
 
-def _take(obj: Any, keep: NDArray[np.bool_]) -> Any:
-    """A copy of a frozen dataclass of batched arrays (batch axis first) with rows `keep`."""
-    n = keep.shape[0]
-    changes = {}
-    for f in dataclasses.fields(obj):
-        v = getattr(obj, f.name)
-        if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == n:
-            changes[f.name] = v[keep]
-    return dataclasses.replace(obj, **changes)
+def _take(obj: HandState, keep: NDArray[np.bool_]) -> HandState:
+    """The batch rows `keep` of a hand state (batch axis first)."""
+    return HandState(obj.position[keep], obj.rotation[keep], obj.openness[keep])
 
 
 def _run_mode(

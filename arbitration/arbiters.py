@@ -27,7 +27,7 @@ import functools
 import itertools
 import math
 from dataclasses import dataclass, field
-from typing import ClassVar, Protocol, TypeVar
+from typing import ClassVar, Protocol, TypeVar, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -114,17 +114,74 @@ STEP_ARRAYS = (
 )
 
 
+#: One sample of a moving window, (..., D): an array, or on the single-state path a tuple of
+#: floats (that path computes on Python floats, so its samples stay floats between ticks).
+Row = batched.Row
+
+
 @dataclass(frozen=True)
 class FilterState:
-    """Moving-window buffers of the DS arbiter (batch shape (...), window W, dims D)."""
+    """Moving windows of the DS arbiter: the last W raw alpha and B samples (dims D).
 
-    alpha_buf: Array  # (..., W, D)
-    B_buf: Array  # (..., W, D), starts full of ones
-    count: int = 0  # alpha samples seen so far
+    The windows are rings of W rows in slot order, each (..., D) for a batch shape (...). A
+    tick replaces one row and shares the other W - 1 with the state it came from, so stepping
+    copies no window and every earlier state stays valid (rows are never written in place).
+    `alpha_buf` and `B_buf` stack the rows as (..., W, D) arrays.
+
+    Attributes:
+        alpha_rows: W raw alpha samples (eq 8, clipped, before the window mean).
+        B_rows: W raw willingness samples (eq 7); the window starts full of ones.
+        count: alpha samples seen so far (the alpha mean divides by min(count, W)).
+    """
+
+    alpha_rows: tuple[Row, ...]
+    B_rows: tuple[Row, ...]
+    count: int = 0
 
     @classmethod
     def initial(cls, window: int, dims: int, batch: tuple[int, ...] = ()) -> FilterState:
-        return cls(np.zeros((*batch, window, dims)), np.ones((*batch, window, dims)), 0)
+        if not batch:
+            return cls(((0.0,) * dims,) * window, ((1.0,) * dims,) * window, 0)
+        zeros, ones = np.zeros((*batch, dims)), np.ones((*batch, dims))
+        zeros.flags.writeable = ones.flags.writeable = False
+        return cls((zeros,) * window, (ones,) * window, 0)
+
+    @classmethod
+    def from_buffers(cls, alpha_buf: Array, B_buf: Array, count: int) -> FilterState:
+        """A state from (..., W, D) windows (copied)."""
+        W = B_buf.shape[-2]
+        return cls(
+            tuple(alpha_buf[..., w, :].copy() for w in range(W)),
+            tuple(B_buf[..., w, :].copy() for w in range(W)),
+            count,
+        )
+
+    @property
+    def alpha_buf(self) -> Array:
+        """(..., W, D): the alpha window, rows in slot order."""
+        return np.stack([np.asarray(r, dtype=np.float64) for r in self.alpha_rows], axis=-2)
+
+    @property
+    def B_buf(self) -> Array:
+        """(..., W, D): the willingness window, rows in slot order."""
+        return np.stack([np.asarray(r, dtype=np.float64) for r in self.B_rows], axis=-2)
+
+    @property
+    def window(self) -> int:
+        return len(self.B_rows)
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        """(..., D): the batch shape and the number of dims."""
+        return np.shape(self.B_rows[0])
+
+    def select(self, index: NDArray[np.bool_] | NDArray[np.intp]) -> FilterState:
+        """The state of the batch rows `index` (a boolean mask or indices on the first axis)."""
+        return FilterState(
+            tuple(np.asarray(r)[index] for r in self.alpha_rows),
+            tuple(np.asarray(r)[index] for r in self.B_rows),
+            self.count,
+        )
 
 
 @functools.lru_cache(maxsize=64)
@@ -148,15 +205,16 @@ def _states(inp: ArbitrationInput) -> tuple[HandState, ...]:
 def _unbatched(inp: ArbitrationInput, state: FilterState) -> bool:
     """True when every state is a single one (no batch axis) and the shapes agree."""
     shape = inp.X_current.openness.shape
+    if len(shape) != 1:
+        return False
     for s in _states(inp):
         if s.rotation.ndim != 2 or s.position.ndim != 1 or s.openness.shape != shape:
             return False
-    if len(shape) != 1:
+    D = 6 + shape[0]
+    row = state.B_rows[0]
+    if len(row) != D or (isinstance(row, np.ndarray) and row.ndim != 1):
         return False
-    dims = (state.alpha_buf.shape, state.B_buf.shape)
-    if dims[0] != dims[1] or len(dims[0]) != 2 or dims[0][1] != 6 + shape[0]:
-        return False
-    return inp.history_term is None or inp.history_term.shape == (6 + shape[0],)
+    return inp.history_term is None or inp.history_term.shape == (D,)
 
 
 @functools.lru_cache(maxsize=64)
@@ -183,6 +241,13 @@ def _scalar_constants(cfg: ArbitrationConfig) -> scalar.Constants:
     )
 
 
+def _float_rows(rows: tuple[Row, ...]) -> tuple[tuple[float, ...], ...]:
+    """Window rows in the scalar path's form, tuples of floats (array rows are converted)."""
+    if type(rows[0]) is tuple:
+        return cast(tuple[tuple[float, ...], ...], rows)
+    return tuple(tuple(np.asarray(r, dtype=np.float64).tolist()) for r in rows)
+
+
 def _scalar_step(
     mode: Mode, c: scalar.Constants, state: FilterState, inp: ArbitrationInput
 ) -> tuple[FilterState, ArbitrationStep]:
@@ -193,37 +258,26 @@ def _scalar_step(
     B = B_raw
     D = len(U_h)
     if mode is Mode.DS:
-        alpha_cols, B_cols = state.alpha_buf.T.tolist(), state.B_buf.T.tolist()
-        alpha, B = scalar.ds_filter(P_r, P_h, B_raw, alpha_cols, B_cols, state.count)
+        alpha, B, alpha_rows, B_rows = scalar.ds_filter(
+            P_r, P_h, B_raw, _float_rows(state.alpha_rows), _float_rows(state.B_rows), state.count
+        )
+        state = _new(FilterState, alpha_rows=alpha_rows, B_rows=B_rows, count=state.count + 1)
     elif mode is Mode.S:
         alpha = [scalar.standard_alpha(states[6][0], states[3][0], states[5][0], c.eps_m)] * D
     else:
         alpha = [1.0 if mode is Mode.AUTONOMOUS else 0.0] * D
     U_out, (p, R, g) = scalar.finish(states[3], U_h, U_r, alpha, inp.dt)
     # One conversion to numpy for every output; the arrays are views of it.
-    parts = [alpha, P_h, P_r, B, psi_h, psi_r, U_h, U_r, U_out, p, R[0], R[1], R[2], g]
-    if mode is Mode.DS:
-        parts += alpha_cols
-        parts += B_cols
-    n = sum(len(x) for x in parts)
-    buf = np.fromiter(itertools.chain.from_iterable(parts), np.float64, n)
+    parts = (alpha, P_h, P_r, B, psi_h, psi_r, U_h, U_r, U_out, p, R[0], R[1], R[2], g)
+    buf = np.fromiter(itertools.chain.from_iterable(parts), np.float64, 10 * D + 6)
     out = buf[: 9 * D].reshape(9, D)
     i = 9 * D + 12
     X_next = _new(
         HandState,
         position=buf[9 * D : 9 * D + 3],
         rotation=buf[9 * D + 3 : i].reshape(3, 3),
-        openness=buf[i : i + D - 6],
+        openness=buf[i:],
     )
-    if mode is Mode.DS:
-        W = state.B_buf.shape[0]
-        i += D - 6
-        state = _new(
-            FilterState,
-            alpha_buf=buf[i : i + W * D].reshape(D, W).T,
-            B_buf=buf[i + W * D :].reshape(D, W).T,
-            count=state.count + 1,
-        )
     return state, _new(
         ArbitrationStep,
         alpha=out[0],
@@ -389,26 +443,19 @@ class DimensionSpecific(_Base):
     def _batched(
         self, state: FilterState, inp: ArbitrationInput, t: batched.Tick
     ) -> tuple[FilterState, ArbitrationStep]:
-        D, N = t.B_raw.shape
-        W = state.B_buf.shape[-2]
-        shape = (*t.batch, W, D)
-        if state.alpha_buf.shape != shape or state.B_buf.shape != shape:
+        D = t.B_raw.shape[0]
+        shape = (*t.batch, D)
+        if state.shape != shape:
             # A filter state with a larger batch than the inputs: broadcast the inputs to it,
             # as numpy broadcasting did; a smaller one cannot hold the tick's values.
-            batch = np.broadcast_shapes(state.B_buf.shape[:-2], t.batch)
-            shape = (*batch, W, D)
-            if state.alpha_buf.shape != shape or state.B_buf.shape != shape:
-                raise ValueError(f"filter state of shape {state.B_buf.shape} for a tick {shape}")
+            batch = np.broadcast_shapes(state.shape[:-1], t.batch)
+            if state.shape != (*batch, D):
+                raise ValueError(f"filter state of shape {state.shape} for a tick {shape}")
             t = _tick(self.config, _broadcast_input(inp, batch))
-            N = t.B_raw.shape[1]
-        alpha, B, alpha_buf, B_buf = batched.ds_filter(
-            t.P,
-            t.B_raw,
-            state.alpha_buf.reshape(N, W, D),
-            state.B_buf.reshape(N, W, D),
-            state.count,
+        alpha, B, alpha_rows, B_rows = batched.ds_filter(
+            t.P, t.B_raw, state.alpha_rows, state.B_rows, state.count, t.batch
         )
-        new = FilterState(alpha_buf.reshape(shape), B_buf.reshape(shape), state.count + 1)
+        new = FilterState(alpha_rows, B_rows, state.count + 1)
         return new, _batched_step(t, alpha, B, inp.dt)
 
 

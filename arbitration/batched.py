@@ -34,6 +34,8 @@ from dsteleop.arbitration.scalar import log_rel
 from dsteleop.arbitration.se3 import HandState, so3_log
 
 Array = NDArray[np.float64]
+#: A window row, as `arbiters.FilterState` keeps it: (..., D), or a tuple of D floats.
+Row = Array | tuple[float, ...]
 
 _SMALL = 1e-4
 _NEAR_PI = np.pi - 1e-3
@@ -274,43 +276,64 @@ def _log_pairs(A: Array, Bm: Array, out: Array) -> None:
 
 
 def ds_filter(
-    P: Array, B_raw: Array, alpha_buf: Array, B_buf: Array, count: int
-) -> tuple[Array, Array, Array, Array]:
-    """Eq (8) with the moving windows.
+    P: Array,
+    B_raw: Array,
+    alpha_rows: tuple[Row, ...],
+    B_rows: tuple[Row, ...],
+    count: int,
+    batch: tuple[int, ...],
+) -> tuple[Array, Array, tuple[Row, ...], tuple[Row, ...]]:
+    """Eq (8) with the moving windows (rows as `arbiters.FilterState` keeps them).
 
-    The state's buffers are (N, W, D); the new ones are views of (W, D, N) memory, so that
-    this tick and the next read and write whole rows of N (any layout works, this one is fast).
+    Rows are (..., D) for the batch shape (...); the new ones are transposed views of (D, N)
+    memory, so that the next tick reads them back as contiguous rows of N.
 
     Args:
         P: (D, 2, N) [P(H), P(R)]; B_raw: (D, N).
-        alpha_buf, B_buf: (N, W, D) windows; count: alpha samples seen before this tick.
+        alpha_rows, B_rows: W rows each in slot order (not modified); count: alpha samples
+            seen before this tick.
+        batch: the batch shape (...), N = prod(batch).
 
     Returns:
-        (alpha, B, alpha_buf, B_buf): filtered (D, N) values and the new (N, W, D) buffers.
+        (alpha, B, alpha_rows, B_rows): filtered (D, N) values and the new windows (this
+        tick's rows in slot count % W, the others shared).
     """
-    N, W, D = B_buf.shape
+    D, N = B_raw.shape
+    W = len(B_rows)
     slot = count % W
-    B_new = np.empty((W, D, N))
-    B_new[...] = B_buf.transpose(1, 2, 0)
-    B_new[slot] = B_raw
-    B = B_new[0].copy()
-    for w in range(1, W):  # the window sum, in slot order as ndarray.sum(-2)
-        B += B_new[w]
+
+    def as_dn(r: Row) -> Array:
+        return np.asarray(r, dtype=np.float64).reshape(N, D).T
+
+    def as_row(x: Array) -> Array:
+        return x.T.reshape((*batch, D))
+
+    def window_sum(rows: list[Array]) -> Array:
+        total = np.array(rows[0], order="C")
+        for r in rows[1:]:  # in slot order, as ndarray.sum(-2)
+            total += r
+        return total
+
+    Bs = [as_dn(r) for r in B_rows]
+    Bs[slot] = B_raw
+    B = window_sum(Bs)
     B *= 1.0 / W
     Ph, Pr = P[:, 0], P[:, 1]
-    alpha_new = np.empty((W, D, N))
-    alpha_new[...] = alpha_buf.transpose(1, 2, 0)
-    a = alpha_new[slot]
-    np.subtract(Pr, Ph, out=a)
+    a = np.subtract(Pr, Ph)
     a *= B
     a += Ph
     np.maximum(a, 0.0, out=a)
     np.minimum(a, 1.0, out=a)
-    alpha = alpha_new[0].copy()
-    for w in range(1, W):
-        alpha += alpha_new[w]
+    As = [as_dn(r) for r in alpha_rows]
+    As[slot] = a
+    alpha = window_sum(As)
     alpha /= min(count + 1, W)
-    return alpha, B, alpha_new.transpose(2, 0, 1), B_new.transpose(2, 0, 1)
+    return (
+        alpha,
+        B,
+        (*alpha_rows[:slot], as_row(a), *alpha_rows[slot + 1 :]),
+        (*B_rows[:slot], as_row(B_raw), *B_rows[slot + 1 :]),
+    )
 
 
 def finish(t: Tick, alpha: Array, dt: float) -> tuple[Array, HandState]:

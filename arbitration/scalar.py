@@ -273,35 +273,35 @@ def ds_filter(
     P_r: Vec,
     P_h: Vec,
     B_raw: Vec,
-    alpha_cols: list[Vec],
-    B_cols: list[Vec],
+    alpha_rows: tuple[tuple[float, ...], ...],
+    B_rows: tuple[tuple[float, ...], ...],
     count: int,
-) -> tuple[Vec, Vec]:
-    """Eq (8) with the moving windows; updates the window in place.
+) -> tuple[Vec, Vec, tuple[tuple[float, ...], ...], tuple[tuple[float, ...], ...]]:
+    """Eq (8) with the moving windows.
 
     Args:
         P_r, P_h, B_raw: this tick's allocations and raw willingness.
-        alpha_cols, B_cols: the windows by dimension, D lists of W samples (the transposed
-            (W, D) buffers), modified in place.
+        alpha_rows, B_rows: the windows, W rows of D samples in slot order (not modified).
         count: alpha samples seen before this tick.
 
     Returns:
-        (alpha, B): the filtered values.
+        (alpha, B, alpha_rows, B_rows): the filtered values and the new windows (this tick's
+        row in slot count % W, the other rows shared).
     """
-    W = len(B_cols[0]) if B_cols else 1
+    W = len(B_rows)
     slot = count % W
-    inv_w = 1.0 / W
     n = min(count + 1, W)
-    alpha, B = [], []
+    B_rows = (*B_rows[:slot], tuple(B_raw), *B_rows[slot + 1 :])
+    inv_w = 1.0 / W
     # Window sums in slot order, as numpy sums a (W, D) buffer over its first axis.
-    for cb, ca, r, h, b_raw in zip(B_cols, alpha_cols, P_r, P_h, B_raw):
-        cb[slot] = b_raw
-        b = sum(cb) * inv_w
+    B = [sum(col) * inv_w for col in zip(*B_rows)]
+    a_raw = []
+    for r, h, b in zip(P_r, P_h, B):
         a = (r - h) * b + h
-        ca[slot] = 0.0 if a < 0.0 else 1.0 if a > 1.0 else a
-        B.append(b)
-        alpha.append(sum(ca) / n)
-    return alpha, B
+        a_raw.append(0.0 if a < 0.0 else 1.0 if a > 1.0 else a)
+    alpha_rows = (*alpha_rows[:slot], tuple(a_raw), *alpha_rows[slot + 1 :])
+    alpha = [sum(col) / n for col in zip(*alpha_rows)]
+    return alpha, B, alpha_rows, B_rows
 
 
 def finish(

@@ -78,7 +78,7 @@ def reference_step(
         alpha_buf = state.alpha_buf.copy()
         alpha_buf[..., slot, :] = ds_alpha(P_r, P_h, B)
         alpha = alpha_buf.sum(-2) / min(state.count + 1, W)
-        state = FilterState(alpha_buf, B_buf, state.count + 1)
+        state = FilterState.from_buffers(alpha_buf, B_buf, state.count + 1)
     elif mode is Mode.S:
         a = standard_alpha(G.position, C.position, Cs.position, cfg.eps_trans_m)
         alpha = np.broadcast_to(a[..., None], shape)
@@ -296,11 +296,18 @@ def test_step_leaves_its_inputs_and_old_state_alone(batch: tuple[int, ...]) -> N
     for n in NAMES:
         for a, b in zip(vars(getattr(inp, n)).values(), copies[n]):
             np.testing.assert_array_equal(a, b)
-    # Results and the new state do not share memory with the old state or each other's fields.
-    r1.alpha[...] = -1.0
+    # Writing into a result changes no state; stepping a state leaves it as it was (the new
+    # state shares the untouched window rows), so an old state can be stepped again.
+    windows = (fs1.alpha_buf, fs1.B_buf)
+    for name in FIELDS:
+        getattr(r1, name)[...] = -1.0
     fs2, r2 = arb.step(fs1, inp)
     assert np.all(r2.alpha >= 0.0)
-    assert not np.shares_memory(fs1.alpha_buf, fs2.alpha_buf)
+    np.testing.assert_array_equal(fs1.alpha_buf, windows[0])
+    np.testing.assert_array_equal(fs1.B_buf, windows[1])
+    fs2b, r2b = arb.step(fs1, inp)
+    np.testing.assert_array_equal(r2b.alpha, r2.alpha)
+    np.testing.assert_array_equal(fs2b.B_buf, fs2.B_buf)
     assert r2.alpha.shape == (*batch, 11) and r2.X_next.rotation.shape == (*batch, 3, 3)
 
 
@@ -318,3 +325,32 @@ def test_batched_filter_state_with_unbatched_inputs_broadcasts() -> None:
             np.testing.assert_allclose(got, np.broadcast_to(want, got.shape), rtol=0, atol=1e-9)
     with pytest.raises(ValueError, match="filter state"):
         arb.step(arb.initial_state(11), random_input(rng, (2,), 5))
+
+
+@pytest.mark.parametrize("batch", [(), (6,), (2, 3)])
+def test_filter_state_from_buffers_and_select(batch: tuple[int, ...]) -> None:
+    """A window rebuilt from its (..., W, D) arrays steps like the original; select() keeps rows."""
+    rng = np.random.default_rng(9)
+    arb = make_arbiter(Mode.DS)
+    fs = arb.initial_state(11, batch)
+    for _ in range(3):
+        fs, _ = arb.step(fs, random_input(rng, batch, 5))
+    assert fs.alpha_buf.shape == fs.B_buf.shape == (*batch, 5, 11)
+    copy = FilterState.from_buffers(fs.alpha_buf, fs.B_buf, fs.count)
+    inp = random_input(rng, batch, 5)
+    (a, ra), (b, rb) = arb.step(fs, inp), arb.step(copy, inp)
+    for name in FIELDS:
+        np.testing.assert_array_equal(getattr(ra, name), getattr(rb, name))
+    np.testing.assert_array_equal(a.alpha_buf, b.alpha_buf)
+    np.testing.assert_array_equal(a.B_buf, b.B_buf)
+    if len(batch) == 1:
+        keep = np.arange(batch[0]) % 2 == 0
+        part = a.select(keep)
+        assert part.count == a.count
+        np.testing.assert_array_equal(part.alpha_buf, a.alpha_buf[keep])
+        np.testing.assert_array_equal(part.B_buf, a.B_buf[keep])
+        kept = [getattr(inp, n) for n in NAMES]
+        kept = [HandState(s.position[keep], s.rotation[keep], s.openness[keep]) for s in kept]
+        _, r_part = arb.step(part, input_from_states(kept, inp.dt))
+        _, r_all = arb.step(a, inp)
+        np.testing.assert_allclose(r_part.alpha, r_all.alpha[keep], rtol=0, atol=1e-12)
