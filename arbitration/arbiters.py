@@ -24,8 +24,8 @@ from __future__ import annotations
 
 import enum
 import functools
-import itertools
 import math
+import struct
 from dataclasses import dataclass, field
 from typing import ClassVar, Protocol, TypeVar, cast
 
@@ -202,19 +202,33 @@ def _states(inp: ArbitrationInput) -> tuple[HandState, ...]:
     )
 
 
-def _unbatched(inp: ArbitrationInput, state: FilterState) -> bool:
-    """True when every state is a single one (no batch axis) and the shapes agree."""
+def _single(inp: ArbitrationInput, state: FilterState) -> list[scalar.State] | None:
+    """The seven states as Python floats for the scalar path, or None when the tick is not a
+    single one (a batch axis anywhere, or shapes that only broadcasting would reconcile)."""
     shape = inp.X_current.openness.shape
     if len(shape) != 1:
-        return False
-    for s in _states(inp):
-        if s.rotation.ndim != 2 or s.position.ndim != 1 or s.openness.shape != shape:
-            return False
+        return None
     D = 6 + shape[0]
     row = state.B_rows[0]
     if len(row) != D or (isinstance(row, np.ndarray) and row.ndim != 1):
-        return False
-    return inp.history_term is None or inp.history_term.shape == (D,)
+        return None
+    if inp.history_term is not None and inp.history_term.shape != (D,):
+        return None
+    states = []
+    for s in (
+        inp.X_human,
+        inp.X_human_prev,
+        inp.X_human_start,
+        inp.X_current,
+        inp.X_prev,
+        inp.X_start,
+        inp.X_goal,
+    ):
+        p, R, g = s.position, s.rotation, s.openness
+        if R.ndim != 2 or p.ndim != 1 or g.shape != shape:
+            return None
+        states.append((p.tolist(), R.tolist(), g.tolist()))
+    return states
 
 
 @functools.lru_cache(maxsize=64)
@@ -233,9 +247,9 @@ def _scalar_constants(cfg: ArbitrationConfig) -> scalar.Constants:
         ef=cfg.eps_finger,
         kappa=cfg.kappa,
         pm1=cfg.p - 1.0,
-        pq=cfg.p + cfg.q,
+        nq1=-(cfg.q + 1.0),
         scale=cfg.b * (cfg.q - 1.0) / cfg.p,
-        c0=(cfg.p + cfg.q) * math.log1p(zm) - (cfg.p - 1.0) * math.log(zm),
+        k0=math.exp((cfg.p + cfg.q) * math.log1p(zm) - (cfg.p - 1.0) * math.log(zm)),
         floor=cfg.psi_robot_floor,
         eps_m=cfg.eps_trans_m,
     )
@@ -249,28 +263,36 @@ def _float_rows(rows: tuple[Row, ...]) -> tuple[tuple[float, ...], ...]:
 
 
 def _scalar_step(
-    mode: Mode, c: scalar.Constants, state: FilterState, inp: ArbitrationInput
+    mode: Mode,
+    c: scalar.Constants,
+    state: FilterState,
+    inp: ArbitrationInput,
+    states: list[scalar.State],
 ) -> tuple[FilterState, ArbitrationStep]:
     """One unbatched tick of any mode on Python floats (`scalar.py`); same numbers."""
-    states = [(s.position.tolist(), s.rotation.tolist(), s.openness.tolist()) for s in _states(inp)]
     hist = None if inp.history_term is None else inp.history_term.tolist()
     U_h, U_r, P_h, P_r, psi_h, psi_r, B_raw = scalar.kernel(states, c, inp.dt, hist)
     B = B_raw
     D = len(U_h)
     if mode is Mode.DS:
-        alpha, B, alpha_rows, B_rows = scalar.ds_filter(
-            P_r, P_h, B_raw, _float_rows(state.alpha_rows), _float_rows(state.B_rows), state.count
-        )
+        rows = _float_rows(state.alpha_rows), _float_rows(state.B_rows)
+        alpha, B, alpha_rows, B_rows = scalar.ds_filter(P_r, P_h, B_raw, *rows, state.count)
         state = _new(FilterState, alpha_rows=alpha_rows, B_rows=B_rows, count=state.count + 1)
     elif mode is Mode.S:
         alpha = [scalar.standard_alpha(states[6][0], states[3][0], states[5][0], c.eps_m)] * D
     else:
         alpha = [1.0 if mode is Mode.AUTONOMOUS else 0.0] * D
     U_out, (p, R, g) = scalar.finish(states[3], U_h, U_r, alpha, inp.dt)
-    # One conversion to numpy for every output; the arrays are views of it.
-    parts = (alpha, P_h, P_r, B, psi_h, psi_r, U_h, U_r, U_out, p, R[0], R[1], R[2], g)
-    buf = np.fromiter(itertools.chain.from_iterable(parts), np.float64, 10 * D + 6)
-    out = buf[: 9 * D].reshape(9, D)
+    # One conversion to numpy for every output, in the order of STEP_ARRAYS then X_next:
+    # struct packs the floats straight into the array's memory (~2x faster than np.fromiter;
+    # star-unpacking ~1.6x faster than itertools.chain); the arrays are views of it.
+    buf = np.empty(10 * D + 6)
+    # (numpy 1.26's stubs do not declare the buffer protocol, hence the ignore)
+    _packer(D).pack_into(
+        buf,  # type: ignore[arg-type]
+        0, *alpha, *P_h, *P_r, *B, *psi_h, *psi_r, *U_h, *U_r,
+        *U_out, *p, *R[0], *R[1], *R[2], *g,
+    )  # fmt: skip
     i = 9 * D + 12
     X_next = _new(
         HandState,
@@ -278,19 +300,15 @@ def _scalar_step(
         rotation=buf[9 * D + 3 : i].reshape(3, 3),
         openness=buf[i:],
     )
-    return state, _new(
-        ArbitrationStep,
-        alpha=out[0],
-        P_human=out[1],
-        P_robot=out[2],
-        B=out[3],
-        psi_human=out[4],
-        psi_robot=out[5],
-        U_human=out[6],
-        U_robot=out[7],
-        U_out=out[8],
-        X_next=X_next,
-    )
+    result = _new(ArbitrationStep, X_next=X_next)
+    result.__dict__.update(zip(STEP_ARRAYS, buf[: 9 * D].reshape(9, D)))
+    return state, result
+
+
+@functools.lru_cache(maxsize=16)
+def _packer(D: int) -> struct.Struct:
+    """Native doubles for the nine (D,) outputs of a tick and the next state (12 + D - 6)."""
+    return struct.Struct(f"{10 * D + 6}d")
 
 
 _T = TypeVar("_T")
@@ -379,8 +397,9 @@ class _Base:
         self, state: FilterState, inp: ArbitrationInput
     ) -> tuple[FilterState, ArbitrationStep]:
         """One tick: the scalar path for one state, the batched kernel for a batch."""
-        if _unbatched(inp, state):
-            return _scalar_step(self.mode, self._constants, state, inp)
+        states = _single(inp, state)
+        if states is not None:
+            return _scalar_step(self.mode, self._constants, state, inp, states)
         return self._batched(state, inp, _tick(self.config, inp))
 
     def _batched(

@@ -51,7 +51,7 @@ class Tick:
         B_raw: (D, N) unfiltered willingness.
         batch: the batch shape (...) of the inputs; N = prod(batch).
         R_cur: (3, 3, N) rotation of the current state, R_cur[i, k, n] = R[n, i, k].
-        p_cur: (N, 3) position, g_cur: (N, F) openness of the current state.
+        p_cur: (3, N) position, g_cur: (F, N) openness of the current state.
     """
 
     U: Array
@@ -145,7 +145,6 @@ def kernel(
     np.subtract(left[0:3], d[0:3], out=d[0:3])
     np.subtract(left[3:], d[6:], out=d[6:])
     _log_pairs(A, Bm, d[3:6])
-    R_cur = A[:, :, 2, 0].copy()
 
     # eq (4)/(5): [P(H), P(R)] from [goal - hum, goal - cur]; denominators |goal - start|.
     P = np.empty((D, 2, N))
@@ -218,7 +217,7 @@ def kernel(
     log_b -= z
     log_b += (p + q) * np.log1p(zm) - (p - 1.0) * np.log(zm)
     B_raw = np.exp(log_b, out=log_b)
-    return Tick(U, P, psi, B_raw, batch, R_cur, C[0], C[2])
+    return Tick(U, P, psi, B_raw, batch, A[:, :, 2, 0], left[0:3, 2, 0], left[3:, 2, 0])
 
 
 def _log_pairs(A: Array, Bm: Array, out: Array) -> None:
@@ -346,35 +345,56 @@ def finish(t: Tick, alpha: Array, dt: float) -> tuple[Array, HandState]:
         U_out (..., D) and X_next, batch first (views of component-major arrays).
     """
     Uh, Ur = t.U[:, 0], t.U[:, 1]
-    U_out = Ur - Uh
+    U_out = np.subtract(Ur, Uh)
     U_out *= alpha
     U_out += Uh
-    p = U_out[0:3] * dt
-    p += t.p_cur.T
-    # exp(w dt) = I + a K + b K^2 = (1 - b t2) I + a K + b w w^T, K = hat(w dt).
+    D, N = U_out.shape
+    nxt = np.empty((6 + D, N))  # position (3), rotation (9), openness (F), component-major
+    p = nxt[0:3]
+    np.multiply(U_out[0:3], dt, out=p)
+    p += t.p_cur
+    # exp(w) = I + a K + b K^2 = (1 - b t2) I + a K + b w w^T, K = hat(w), w = omega dt.
     w = U_out[3:6] * dt
-    t2 = np.square(w).sum(0)
+    t2 = np.einsum("in,in->n", w, w)
     th = np.sqrt(t2)
     small = th < _SMALL
-    safe = np.where(small, 1.0, th)
-    a = np.where(small, 1.0 - t2 / 6.0, np.sin(safe) / safe)
-    b = np.where(small, 0.5 - t2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
-    E = w[:, None] * (b * w)[None, :]
-    aw = a * w
+    any_small = bool(small.any())
+    if any_small:
+        th[small] = 1.0
+    a = np.sin(th)
+    a /= th
+    b = np.cos(th)
+    np.subtract(1.0, b, out=b)
+    th *= th
+    b /= th
+    if any_small:
+        a[small] = 1.0 - t2[small] / 6.0
+        b[small] = 0.5 - t2[small] / 24.0
+    E = np.multiply(w[:, None], b * w)
+    aw = np.multiply(a, w, out=w)
     E[0, 1] -= aw[2]
     E[1, 0] += aw[2]
     E[0, 2] += aw[1]
     E[2, 0] -= aw[1]
     E[1, 2] -= aw[0]
     E[2, 1] += aw[0]
-    E.reshape(9, -1)[::4] += 1.0 - b * t2
-    R = (E[:, :, None] * t.R_cur[None]).sum(1)
-    g = U_out[6:] * dt
-    g += t.g_cur.T
+    b *= t2
+    np.subtract(1.0, b, out=b)
+    E.reshape(9, N)[::4] += b
+    # R_next = E R_cur, row by row: R[i] = sum_j E[i, j] R_cur[j].
+    R = nxt[3:12].reshape(3, 3, N)
+    Rc = t.R_cur
+    tmp = np.empty((3, N))
+    for i in range(3):
+        np.multiply(E[i, 0], Rc[0], out=R[i])
+        R[i] += np.multiply(E[i, 1], Rc[1], out=tmp)
+        R[i] += np.multiply(E[i, 2], Rc[2], out=tmp)
+    g = nxt[12:]
+    np.multiply(U_out[6:], dt, out=g)
+    g += t.g_cur
     np.maximum(g, 0.0, out=g)
     np.minimum(g, 1.0, out=g)
     bs = t.batch
-    D = U_out.shape[0]
     return U_out.T.reshape((*bs, D)), HandState(
         p.T.reshape((*bs, 3)), R.transpose(2, 0, 1).reshape((*bs, 3, 3)), g.T.reshape((*bs, D - 6))
     )

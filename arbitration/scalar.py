@@ -37,9 +37,10 @@ class Constants:
         vt, vr, vf: velocity limits [m/s], [rad/s], [1/s].
         et, er, ef: eps floors of translation, rotation, fingers.
         kappa: von Mises concentration (eq 5).
-        pm1, pq: p - 1 and p + q of eq (7).
+        pm1, nq1: p - 1 and -(q + 1), the exponents of eq (7) written as
+            B = k0 (z / (1 + z))^(p - 1) (1 + z)^-(q + 1), which stays finite for any z >= 0.
         scale: b (q - 1) / p, so that z = |psi_h| / sigma = |psi_h| / (max(|psi_r|, floor) scale).
-        c0: (p + q) log1p(z_m) - (p - 1) log(z_m), z_m = x_m / sigma, the mode normalisation.
+        k0: (1 + z_m)^(p + q) / z_m^(p - 1), z_m = x_m / sigma, the mode normalisation.
         floor: psi_robot_floor of eq (7).
         eps_m: eps of the eq (3) denominator [m].
     """
@@ -55,9 +56,9 @@ class Constants:
     ef: float
     kappa: float
     pm1: float
-    pq: float
+    nq1: float
     scale: float
-    c0: float
+    k0: float
     floor: float
     eps_m: float
 
@@ -201,64 +202,73 @@ def kernel(states: Sequence[State], c: Constants, dt: float, history: Vec | None
     f = vr / n if n > vr else 1.0
     U_h += (a * f, b * f, e * f)
 
-    # Fingers: the same, one loop; the finger groups' squared norms for eq (6).
-    f_hp, f_hs, f_cp, f_cs = [], [], [], []
-    q_hp = q_hs = q_cp = q_cs = 0.0
-    for g_h, g_hp, g_hs, g_c, g_cp, g_cs, g_g in zip(H[2], Hp[2], Hs[2], C[2], Cp[2], Cs[2], G[2]):
-        den = abs(g_g - g_cs)
+    # Fingers: P and U one by one (each clipped alone); their four differences for eq (6).
+    gH, gC, gG = H[2], C[2], G[2]
+    f_hp = [x - y for x, y in zip(gH, Hp[2])]
+    f_hs = [x - y for x, y in zip(gH, Hs[2])]
+    f_cp = [x - y for x, y in zip(gC, Cp[2])]
+    f_cs = [x - y for x, y in zip(gC, Cs[2])]
+    for g_g, g_s, g_c, g_h, d_h in zip(gG, Cs[2], gC, gH, f_hp):
+        den = abs(g_g - g_s)
         den = den if den > ef else ef
         d = g_g - g_c
         P_r.append(1.0 - erf(abs(d) / den))
+        P_h.append(1.0 - erf(abs(g_g - g_h) / den))
         u = kf * d
         U_r.append(-vf if u < -vf else vf if u > vf else u)
-        P_h.append(1.0 - erf(abs(g_g - g_h) / den))
-        d = g_h - g_hp
-        u = d * inv_dt
+        u = d_h * inv_dt
         U_h.append(-vf if u < -vf else vf if u > vf else u)
-        f_hp.append(d)
-        q_hp += d * d
-        d = g_h - g_hs
-        f_hs.append(d)
-        q_hs += d * d
-        d = g_c - g_cp
-        f_cp.append(d)
-        q_cp += d * d
-        d = g_c - g_cs
-        f_cs.append(d)
-        q_cs += d * d
 
-    # eq (6): u(a, b) = d / |d| per group (0 below eps), each agent with its own states.
-    units = []
-    for (tx, ty, tz), (rx, ry, rz), fd, q in (
-        (t_hp, r_hp, f_hp, q_hp),
-        (t_hs, r_hs, f_hs, q_hs),
-        (t_cp, r_cp, f_cp, q_cp),
-        (t_cs, r_cs, f_cs, q_cs),
+    # eq (6): u(a, b) = d / |d| per group and agent, 0 below the group's eps; kept as the
+    # factors 1 / |d| of (hum - hum_prev, hum - hum_start, cur - prev, cur - start).
+    inv = []
+    for (x, y, z), (rx, ry, rz), fd in (
+        (t_hp, r_hp, f_hp),
+        (t_hs, r_hs, f_hs),
+        (t_cp, r_cp, f_cp),
+        (t_cs, r_cs, f_cs),
     ):
-        n = sqrt(tx * tx + ty * ty + tz * tz)
-        u = [tx / n, ty / n, tz / n] if n >= et else [0.0, 0.0, 0.0]
+        n = sqrt(x * x + y * y + z * z)
+        it = 1.0 / n if n >= et else 0.0
         n = sqrt(rx * rx + ry * ry + rz * rz)
-        u += (rx / n, ry / n, rz / n) if n >= er else (0.0, 0.0, 0.0)
-        n = sqrt(q)
-        u += [v / n for v in fd] if n >= ef else [0.0] * len(fd)
-        units.append(u)
-    u_hp, u_hs, u_cp, u_cs = units
-    vmax = [vt, vt, vt, vr, vr, vr] + [vf] * len(f_hp)
-    hist = [0.0] * len(vmax) if history is None else history
+        ir = 1.0 / n if n >= er else 0.0
+        n = math.hypot(*fd)
+        inv.append((it, ir, 1.0 / n if n >= ef else 0.0))
+    (ht, hr, hf), (st, sr, sf), (ct, cr, cf), (et_, er_, ef_) = inv
 
-    # eq (6) psi, eq (7) B: the normalised beta prime at |psi_h|, reference max(|psi_r|, floor).
-    pm1, pq, c0, floor, scale = c.pm1, c.pq, c.c0, c.floor, c.scale
-    log, log1p = math.log, math.log1p
-    psi_r, psi_h, B = [], [], []
-    for Ur, Uh, m, ucp, ucs, uhp, uhs, h in zip(U_r, U_h, vmax, u_cp, u_cs, u_hp, u_hs, hist):
-        pr = Ur / m - ucp - ucs + h
-        ph = Uh / m - uhp - uhs + h
-        psi_r.append(pr)
-        psi_h.append(ph)
+    # eq (6) psi = U / v_max - u(., prev) - u(., start) (+ history), per agent.
+    it, ir, i_f = 1.0 / vt, 1.0 / vr, 1.0 / vf
+    psi_r = [
+        U_r[0] * it - t_cp[0] * ct - t_cs[0] * et_,
+        U_r[1] * it - t_cp[1] * ct - t_cs[1] * et_,
+        U_r[2] * it - t_cp[2] * ct - t_cs[2] * et_,
+        U_r[3] * ir - r_cp[0] * cr - r_cs[0] * er_,
+        U_r[4] * ir - r_cp[1] * cr - r_cs[1] * er_,
+        U_r[5] * ir - r_cp[2] * cr - r_cs[2] * er_,
+    ]
+    psi_r += [u * i_f - x * cf - y * ef_ for u, x, y in zip(U_r[6:], f_cp, f_cs)]
+    psi_h = [
+        U_h[0] * it - t_hp[0] * ht - t_hs[0] * st,
+        U_h[1] * it - t_hp[1] * ht - t_hs[1] * st,
+        U_h[2] * it - t_hp[2] * ht - t_hs[2] * st,
+        U_h[3] * ir - r_hp[0] * hr - r_hs[0] * sr,
+        U_h[4] * ir - r_hp[1] * hr - r_hs[1] * sr,
+        U_h[5] * ir - r_hp[2] * hr - r_hs[2] * sr,
+    ]
+    psi_h += [u * i_f - x * hf - y * sf for u, x, y in zip(U_h[6:], f_hp, f_hs)]
+    if history is not None:
+        psi_r = [x + h for x, h in zip(psi_r, history)]
+        psi_h = [x + h for x, h in zip(psi_h, history)]
+
+    # eq (7) B: the normalised beta prime at |psi_h| with reference max(|psi_r|, floor),
+    # k0 (z / (1 + z))^(p - 1) (1 + z)^-(q + 1) for z = |psi_h| / sigma.
+    k0, pm1, nq1, floor, scale = c.k0, c.pm1, c.nq1, c.floor, c.scale
+    B = []
+    for ph, pr in zip(psi_h, psi_r):
         r = abs(pr)
         z = abs(ph) / ((r if r > floor else floor) * scale)
-        z = z if z > 1e-300 else 1e-300
-        B.append(exp(pm1 * log(z) - pq * log1p(z) + c0))
+        w = 1.0 + z
+        B.append(k0 * (z / w) ** pm1 * w**nq1)
     return U_h, U_r, P_h, P_r, psi_h, psi_r, B
 
 
@@ -290,17 +300,19 @@ def ds_filter(
     """
     W = len(B_rows)
     slot = count % W
-    n = min(count + 1, W)
     B_rows = (*B_rows[:slot], tuple(B_raw), *B_rows[slot + 1 :])
     inv_w = 1.0 / W
     # Window sums in slot order, as numpy sums a (W, D) buffer over its first axis.
-    B = [sum(col) * inv_w for col in zip(*B_rows)]
-    a_raw = []
-    for r, h, b in zip(P_r, P_h, B):
-        a = (r - h) * b + h
-        a_raw.append(0.0 if a < 0.0 else 1.0 if a > 1.0 else a)
-    alpha_rows = (*alpha_rows[:slot], tuple(a_raw), *alpha_rows[slot + 1 :])
-    alpha = [sum(col) / n for col in zip(*alpha_rows)]
+    B = [s * inv_w for s in map(sum, zip(*B_rows))]
+    a_raw = tuple(
+        [
+            0.0 if (a := (r - h) * b + h) < 0.0 else 1.0 if a > 1.0 else a
+            for r, h, b in zip(P_r, P_h, B)
+        ]
+    )
+    alpha_rows = (*alpha_rows[:slot], a_raw, *alpha_rows[slot + 1 :])
+    n = count + 1 if count < W else W
+    alpha = [s / n for s in map(sum, zip(*alpha_rows))]
     return alpha, B, alpha_rows, B_rows
 
 
@@ -312,8 +324,7 @@ def finish(
     p, R, g = X
     R_next = exp_times((U_out[3] * dt, U_out[4] * dt, U_out[5] * dt), R)
     p_next = [p[0] + U_out[0] * dt, p[1] + U_out[1] * dt, p[2] + U_out[2] * dt]
-    g_next = []
-    for gi, ui in zip(g, U_out[6:]):
-        v = gi + ui * dt
-        g_next.append(0.0 if v < 0.0 else 1.0 if v > 1.0 else v)
+    g_next = [
+        0.0 if (v := gi + ui * dt) < 0.0 else 1.0 if v > 1.0 else v for gi, ui in zip(g, U_out[6:])
+    ]
     return U_out, (p_next, R_next, g_next)
