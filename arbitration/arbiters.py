@@ -167,10 +167,6 @@ class FilterState:
         return np.stack([np.asarray(r, dtype=np.float64) for r in self.B_rows], axis=-2)
 
     @property
-    def window(self) -> int:
-        return len(self.B_rows)
-
-    @property
     def shape(self) -> tuple[int, ...]:
         """(..., D): the batch shape and the number of dims."""
         return np.shape(self.B_rows[0])
