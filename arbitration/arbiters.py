@@ -211,15 +211,7 @@ def _single(inp: ArbitrationInput, state: FilterState) -> list[scalar.State] | N
     if inp.history_term is not None and inp.history_term.shape != (D,):
         return None
     states = []
-    for s in (
-        inp.X_human,
-        inp.X_human_prev,
-        inp.X_human_start,
-        inp.X_current,
-        inp.X_prev,
-        inp.X_start,
-        inp.X_goal,
-    ):
+    for s in _states(inp):
         p, R, g = s.position, s.rotation, s.openness
         if R.ndim != 2 or p.ndim != 1 or g.shape != shape:
             return None

@@ -234,28 +234,10 @@ def kernel(states: Sequence[State], c: Constants, dt: float, history: Vec | None
         ir = 1.0 / n if n >= er else 0.0
         n = math.hypot(*fd)
         inv.append((it, ir, 1.0 / n if n >= ef else 0.0))
-    (ht, hr, hf), (st, sr, sf), (ct, cr, cf), (et_, er_, ef_) = inv
-
-    # eq (6) psi = U / v_max - u(., prev) - u(., start) (+ history), per agent.
-    it, ir, i_f = 1.0 / vt, 1.0 / vr, 1.0 / vf
-    psi_r = [
-        U_r[0] * it - t_cp[0] * ct - t_cs[0] * et_,
-        U_r[1] * it - t_cp[1] * ct - t_cs[1] * et_,
-        U_r[2] * it - t_cp[2] * ct - t_cs[2] * et_,
-        U_r[3] * ir - r_cp[0] * cr - r_cs[0] * er_,
-        U_r[4] * ir - r_cp[1] * cr - r_cs[1] * er_,
-        U_r[5] * ir - r_cp[2] * cr - r_cs[2] * er_,
-    ]
-    psi_r += [u * i_f - x * cf - y * ef_ for u, x, y in zip(U_r[6:], f_cp, f_cs)]
-    psi_h = [
-        U_h[0] * it - t_hp[0] * ht - t_hs[0] * st,
-        U_h[1] * it - t_hp[1] * ht - t_hs[1] * st,
-        U_h[2] * it - t_hp[2] * ht - t_hs[2] * st,
-        U_h[3] * ir - r_hp[0] * hr - r_hs[0] * sr,
-        U_h[4] * ir - r_hp[1] * hr - r_hs[1] * sr,
-        U_h[5] * ir - r_hp[2] * hr - r_hs[2] * sr,
-    ]
-    psi_h += [u * i_f - x * hf - y * sf for u, x, y in zip(U_h[6:], f_hp, f_hs)]
+    i_hp, i_hs, i_cp, i_cs = inv
+    iv = (1.0 / vt, 1.0 / vr, 1.0 / vf)
+    psi_r = _psi(U_r, (t_cp, r_cp, f_cp), (t_cs, r_cs, f_cs), i_cp, i_cs, iv)
+    psi_h = _psi(U_h, (t_hp, r_hp, f_hp), (t_hs, r_hs, f_hs), i_hp, i_hs, iv)
     if history is not None:
         psi_r = [x + h for x, h in zip(psi_r, history)]
         psi_h = [x + h for x, h in zip(psi_h, history)]
@@ -270,6 +252,40 @@ def kernel(states: Sequence[State], c: Constants, dt: float, history: Vec | None
         w = 1.0 + z
         B.append(k0 * (z / w) ** pm1 * w**nq1)
     return U_h, U_r, P_h, P_r, psi_h, psi_r, B
+
+
+Diff = tuple[Sequence[float], Sequence[float], Sequence[float]]
+
+
+def _psi(
+    U: Vec,
+    d_prev: Diff,
+    d_start: Diff,
+    k_prev: tuple[float, float, float],
+    k_start: tuple[float, float, float],
+    inv_vmax: tuple[float, float, float],
+) -> Vec:
+    """Eq (6) for one agent without the history term: U / v_max - u(., prev) - u(., start).
+
+    Args:
+        U: the agent's velocity (6 + F).
+        d_prev, d_start: its differences to its previous and start states, (t, r, f) groups.
+        k_prev, k_start: 1 / |d| of each group, 0 below the group's eps.
+        inv_vmax: 1 / v_max of translation, rotation, fingers.
+    """
+    (tp, rp, fp), (ts, rs, fs) = d_prev, d_start
+    (pt, pr, pf), (st, sr, sf) = k_prev, k_start
+    it, ir, i_f = inv_vmax
+    psi = [
+        U[0] * it - tp[0] * pt - ts[0] * st,
+        U[1] * it - tp[1] * pt - ts[1] * st,
+        U[2] * it - tp[2] * pt - ts[2] * st,
+        U[3] * ir - rp[0] * pr - rs[0] * sr,
+        U[4] * ir - rp[1] * pr - rs[1] * sr,
+        U[5] * ir - rp[2] * pr - rs[2] * sr,
+    ]
+    psi += [u * i_f - x * pf - y * sf for u, x, y in zip(U[6:], fp, fs)]
+    return psi
 
 
 def standard_alpha(goal: Vec, cur: Vec, start: Vec, eps_m: float) -> float:
