@@ -245,19 +245,24 @@ def test_hidden_hand_halts_the_robot_within_0_2_s_and_resumes_without_a_jump(
     np.testing.assert_allclose(first_back.U_human, 0.0, atol=1e-12)
 
 
+def run_corrupted(corrupt: Callable[[HandSample], HandSample]) -> list[Snapshot]:
+    """1.6 s of a manual move whose hand samples pass through `corrupt` first."""
+    loop = scripted_loop(
+        lambda s, t: moved(s, (0.0, -0.05, -0.05), min_jerk(t / 2.0)), Mode.MANUAL, corrupt=corrupt
+    )
+    try:
+        return run_ticks(loop, 1.6)
+    finally:
+        loop.close()
+
+
 def test_nan_in_the_hand_data_counts_as_stale() -> None:
     def corrupt(s: HandSample) -> HandSample:
         if s.t_capture_s >= 1.0:
             return dataclasses.replace(s, p_cam_palm_m=np.full(3, np.nan))
         return s
 
-    loop = scripted_loop(
-        lambda s, t: moved(s, (0.0, -0.05, -0.05), min_jerk(t / 2.0)), Mode.MANUAL, corrupt=corrupt
-    )
-    try:
-        snaps = run_ticks(loop, 1.6)
-    finally:
-        loop.close()
+    snaps = run_corrupted(corrupt)
     late = [s for s in snaps if s.t_s > 1.05]
     assert all(s.status == "lost" and s.reason == "invalid hand data" for s in late)
     assert palm_speeds(snaps[-5:]).max() < 1e-3
@@ -274,13 +279,7 @@ def test_a_stalled_camera_is_detected_by_age() -> None:
             return s
         return frozen[0]
 
-    loop = scripted_loop(
-        lambda s, t: moved(s, (0.0, -0.05, -0.05), min_jerk(t / 2.0)), Mode.MANUAL, corrupt=corrupt
-    )
-    try:
-        snaps = run_ticks(loop, 1.6)
-    finally:
-        loop.close()
+    snaps = run_corrupted(corrupt)
     last = frozen[0].t_capture_s
     for s in snaps:
         if s.t_s > last + 0.1 + 1e-6:

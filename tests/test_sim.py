@@ -231,22 +231,17 @@ def test_unwritable_out_dir(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
 
 
 def test_cli_subprocess_bad_argument_no_traceback(tmp_path: Path) -> None:
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "dsteleop.app.cli",
-            "sim",
-            "--trajectories",
-            "-1",
-            "--out",
-            str(tmp_path),
-        ],
-        capture_output=True,
-        check=False,
-        text=True,
-        timeout=60,
-    )
+    def sim(trajectories: str) -> subprocess.CompletedProcess[str]:
+        args = ["sim", "--trajectories", trajectories, "--out", str(tmp_path)]
+        return subprocess.run(
+            [sys.executable, "-m", "dsteleop.app.cli", *args],
+            capture_output=True,
+            check=False,
+            text=True,
+            timeout=60,
+        )
+
+    proc = sim("-1")
     assert proc.returncode == 2
     assert "Traceback" not in proc.stderr
     assert (
@@ -254,20 +249,5 @@ def test_cli_subprocess_bad_argument_no_traceback(tmp_path: Path) -> None:
         == "dsteleop sim: error: --trajectories must be >= 1, got -1"
     )
     # argparse's own errors (not an integer) are one line and exit 2 too.
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "dsteleop.app.cli",
-            "sim",
-            "--trajectories",
-            "many",
-            "--out",
-            str(tmp_path),
-        ],
-        capture_output=True,
-        check=False,
-        text=True,
-        timeout=60,
-    )
+    proc = sim("many")
     assert proc.returncode == 2 and "invalid int value" in proc.stderr
