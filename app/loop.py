@@ -303,6 +303,7 @@ class TeleopLoop:
         self.events_log: list[tuple[int, str]] = []
         self._last_step: ArbitrationStep | None = None
         self._filter = self.arbiter.initial_state(len(self.dims))
+        self._reset_state: HandState | None = self.X_current  # recorded with the next tick
 
     def _apply(self, req: Requests) -> None:
         """Apply the operator's requests (in the loop's thread); each is recorded as an event."""
@@ -530,6 +531,7 @@ class TeleopLoop:
         self.broadcaster.publish(snap)
         if self._recorder is not None:
             self._recorder.put(self._record(snap, step))
+        self._reset_state = None
         self.tick_index += 1
         return snap
 
@@ -643,6 +645,7 @@ class TeleopLoop:
         arb = None
         if step is not None:
             arb = {k: _sig(getattr(step, k)) for k in STEP_ARRAYS}
+        extra = {} if self._reset_state is None else {"X_reset": pack(self._reset_state)}
         return {
             "k": snap.tick,
             "t": snap.t_s,
@@ -653,12 +656,15 @@ class TeleopLoop:
             "outcome": snap.outcome,
             "events": list(snap.events),
             "hand": hand,
-            "X_current": _sig(pack(snap.X_current)),
-            "X_goal": _sig(pack(snap.X_goal)),
+            # The robot's side at full precision: a replay against the recorded robot reads
+            # them back as its inputs (`replay.RecordedPlant`).
+            "X_current": pack(snap.X_current),
+            "X_goal": pack(snap.X_goal),
             "X_next": _sig(pack(snap.X_next)),
             "U_cmd": _sig(snap.U_cmd),
             "arb": arb,
             "timing": {k: round(v, 4) for k, v in snap.timing.items()},
+            **extra,
         }
 
     # --- running ---------------------------------------------------------------------

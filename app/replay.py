@@ -40,11 +40,11 @@ from numpy.typing import NDArray
 
 from dsteleop.app.cli_util import Progress, prepare_out_dir
 from dsteleop.app.hand_input import HandInput, HumanInput, RecordedHandInput, RecordedInput
-from dsteleop.app.loop import LoopConfig, TeleopLoop, unpack
+from dsteleop.app.loop import LoopConfig, Plant, PlantStep, TeleopLoop, unpack
 from dsteleop.app.observers import Snapshot
 from dsteleop.app.recording import Session, is_session, read_session
 from dsteleop.app.timing import ManualClock
-from dsteleop.arbitration import Mode, OperatorHistory
+from dsteleop.arbitration import HandState, Mode, OperatorHistory
 from dsteleop.errors import DsteleopError
 
 log = logging.getLogger(__name__)
@@ -183,11 +183,14 @@ def run_headless(
     cfg: LoopConfig,
     plant_meta: dict[str, Any],
     history: OperatorHistory | None = None,
+    plant: Plant | None = None,
 ) -> Trace:
-    """Run a fresh loop over `tick_times` (as fast as possible) and trace it."""
-    from dsteleop.app.plant import plant_from_meta
+    """Run a fresh loop over `tick_times` (as fast as possible) and trace it; the plant is
+    a fresh simulated one built from `plant_meta` unless one is given."""
+    if plant is None:
+        from dsteleop.app.plant import plant_from_meta
 
-    plant = plant_from_meta(plant_meta)
+        plant = plant_from_meta(plant_meta)
     clock = ManualClock(tick_times[0] if tick_times else 0.0)
     loop = TeleopLoop(cfg, hand, plant, clock=clock, history=history)
     sub = loop.broadcaster.subscribe()
@@ -256,14 +259,98 @@ def _trace_from_snapshots(
     )
 
 
-def replay_session(session: Session, mode: Mode) -> Trace:
-    """Re-run the session's recorded hand input through a fresh loop in `mode`."""
+class RecordedPlant:
+    """The robot side of a session, played back: each tick returns what the robot and the
+    task reported when the session was recorded (achieved state, phase, task events,
+    outcome), whatever the loop commands.
+
+    Replaying a session against its recorded robot is open loop: no physics runs, so the
+    arbitration sees exactly the states it saw live, on any machine. It reproduces the
+    recorded arbitration (in the recorded mode), or shows what another mode would have
+    computed along the same robot path; it cannot show where another mode would have taken
+    the robot (that is the simulated replay).
+    """
+
+    def __init__(self, session: Session, finger_names: tuple[str, ...]) -> None:
+        self.finger_names = finger_names
+        self._meta = dict(session.meta.get("plant", {}))
+        self._ticks = session.ticks
+        self._k = 0
+        if not session.ticks or "X_reset" not in session.ticks[0]:
+            raise DsteleopError(
+                f"{session.folder}: recorded before robot states were recorded for replay "
+                "(no X_reset); replay it against the simulated robot"
+            )
+
+    def _record(self) -> dict[str, Any]:
+        if self._k >= len(self._ticks):
+            raise DsteleopError("replay ran past the last recorded tick")
+        return self._ticks[self._k]
+
+    def reset(self, utensil: str | None = None) -> HandState:
+        X = unpack(self._record().get("X_reset"))
+        if X is None:
+            raise DsteleopError(f"tick {self._k}: a reset that the recording does not hold")
+        return X
+
+    def goal(self) -> HandState | None:
+        prev = self._ticks[self._k - 1] if self._k > 0 else None
+        if prev is not None and prev.get("phase") == "done" and "X_reset" not in self._record():
+            return None
+        return unpack(self._record().get("X_goal"))
+
+    def phase(self) -> str:
+        return str(self._record().get("phase", ""))
+
+    def apply(self, X_next: HandState) -> PlantStep:
+        r = self._record()
+        self._k += 1
+        events = tuple(str(e) for e in r.get("events", []) if str(e).split(":")[0] in _TASK)
+        X = unpack(r.get("X_current"))
+        assert X is not None
+        return PlantStep(
+            X_current=X,
+            phase=str(r.get("phase", "")),
+            events=events,
+            outcome=str(r.get("outcome", "")),
+            segment_changed=any(e.split(":")[0] == "goal" for e in events),
+        )
+
+    def set_goal_noise(self, sigma_m: float) -> None:
+        pass
+
+    def describe(self) -> dict[str, Any]:
+        return self._meta
+
+    def scene_description(self) -> Any:
+        return None
+
+    def close(self) -> None:
+        pass
+
+
+_TASK = {"goal", "grasp", "release", "success", "failure"}
+
+
+def replay_session(session: Session, mode: Mode, robot: str = "simulated") -> Trace:
+    """Re-run the session's recorded hand input through a fresh loop in `mode`.
+
+    Args:
+        session: the session.
+        mode: arbitration mode of the replay.
+        robot: "simulated" (a fresh PyBullet robot and task, closed loop) or "recorded"
+            (the robot states the session recorded, open loop: `RecordedPlant`).
+    """
     hand = RecordedHandInput(recorded_inputs(session), f"replay of {session.name}")
     history = (
         OperatorHistory.from_dict(session.meta["operator_history"])
         if "operator_history" in session.meta
         else None
     )
+    plant = None
+    if robot == "recorded":
+        dims = tuple(session.meta.get("dims", ()))
+        plant = RecordedPlant(session, dims[6:])
     return run_headless(
         session.name,
         hand,
@@ -271,6 +358,7 @@ def replay_session(session: Session, mode: Mode) -> Trace:
         _session_config(session, mode),
         session.meta.get("plant", {}),
         history,
+        plant,
     )
 
 

@@ -35,7 +35,9 @@ def ds_session(tmp_path_factory: pytest.TempPathFactory) -> Path:
     )
     try:
         built.loop.start_recording(folder)
-        run_headless(built.loop, built.demo, max_ticks=1200)
+        # Until an outcome: the task's own timeout (120 s) ends a stuck run as a failure, so
+        # the session always has one, whatever this machine's physics does with the grasp.
+        run_headless(built.loop, built.demo, max_ticks=3700)
     finally:
         built.loop.close()
     return folder
@@ -78,11 +80,19 @@ def test_session_files_and_metadata(ds_session: Path) -> None:
 def test_replay_in_the_recorded_mode_reproduces_every_alpha(ds_session: Path) -> None:
     s = read_session(ds_session)
     recorded = np.array([r["arb"]["alpha"] for r in s.ticks if r["arb"]])
-    trace = replay_session(s, Mode.DS)
+    # Against the recorded robot (open loop, no physics): the same inputs, the same alphas.
+    trace = replay_session(s, Mode.DS, robot="recorded")
     np.testing.assert_allclose(trace.alpha[trace.arbitrated], recorded, atol=1e-9, rtol=0)
     assert trace.outcome == s.meta["outcome"]
     again = as_recorded(s)
     np.testing.assert_allclose(again.alpha[again.arbitrated], recorded, atol=0, rtol=0)
+    # Against a fresh simulated robot (closed loop): the same world and hand; contacts may
+    # part ways in the last bits, so only the free-space reach is compared, to 1 mm.
+    sim = replay_session(s, Mode.DS)
+    p_rec = np.array([r["X_current"][:3] for r in s.ticks])
+    early = sim.t_s < 2.0
+    assert early.sum() > 30
+    np.testing.assert_allclose(sim.p_robot[early], p_rec[early], atol=1e-3)
 
 
 def test_replay_command_writes_complete_metrics(ds_session: Path, tmp_path: Path) -> None:
@@ -275,12 +285,15 @@ def test_a_video_session_records_its_frames_and_replays_retracked(
 
 @pytest.mark.parametrize("name", ["demo-DS-spoon", "demo-S-spoon", "demo-manual-spoon"])
 def test_the_sample_sessions_are_current(name: str) -> None:
-    """The shipped sessions replay in their own mode to the alphas they recorded; when the
-    code changes what a run does, regenerate them with scripts/make_sample_sessions.sh."""
+    """The shipped sessions, replayed in their own mode against their recorded robot, give
+    the alphas they recorded: the loop and the arbitration still compute what they did.
+    Open loop, so it holds on any CPU (a closed-loop replay through PyBullet would amplify
+    last-bit differences between machines). When the code changes what a run does,
+    regenerate them with scripts/make_sample_sessions.sh."""
     folder = Path(__file__).resolve().parents[1] / "recordings" / name
     s = read_session(folder)
     assert s.complete and s.meta["outcome"] in ("success", "failure")
     recorded = np.array([r["arb"]["alpha"] for r in s.ticks if r["arb"]])
-    trace = replay_session(s, Mode.parse(s.meta["mode"]))
-    np.testing.assert_allclose(trace.alpha[trace.arbitrated], recorded, atol=1e-6, rtol=0)
+    trace = replay_session(s, Mode.parse(s.meta["mode"]), robot="recorded")
+    np.testing.assert_allclose(trace.alpha[trace.arbitrated], recorded, atol=1e-9, rtol=0)
     assert trace.outcome == s.meta["outcome"]
