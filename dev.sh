@@ -58,7 +58,7 @@ case "$cmd" in
         sync ;;
     start)
         sync
-        if .venv/bin/python -c 'import sys; from dsteleop.app.cli import COMMANDS; sys.exit("serve" not in COMMANDS)'; then
+        if .venv/bin/python -c 'import sys; from dsteleop.app.cli.main import COMMANDS; sys.exit("serve" not in COMMANDS)'; then
             exec .venv/bin/dsteleop serve "$@"
         fi
         echo "dev.sh: the browser app (dsteleop serve) is not built yet; here is what the CLI offers:" >&2

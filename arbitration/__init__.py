@@ -1,8 +1,15 @@
 """Dimension-specific shared-control arbitration: pure numpy, no I/O, no clock.
 
 Everything here takes arrays and frozen dataclasses and returns the same; `dt` is always an
-argument. The maths is stated once, in the docstring of each module, with the paper's
-equation numbers (`../shared/paper`, eq. 1-8) and the reading fixed in DESIGN.md.
+argument. The maths is stated once, in the docstring of the module that implements it, with
+the paper's equation numbers (docs/METHOD.md gathers them):
+
+    se3          poses, rotations, differences, integration: the only SO(3) maths
+    policy       U_robot, U_human, eq (2) on the bounded reference
+    allocation   eq (3)-(8)
+    arbiters     one tick of any mode, on a batch of any size
+    history      the operator's previous attempts (eq 6, last term)
+    metrics      the paper's Section IV-D metrics and statistics
 
 Conventions (written down once):
     * Poses are in the robot base frame: position [m], rotation as a 3x3 matrix, finger
@@ -10,20 +17,17 @@ Conventions (written down once):
     * A dimension vector has 6 + F entries: x, y, z [m], rx, ry, rz [rad] (components in the
       base frame of a rotation vector), then the F fingers.
     * Actions U are velocities: m/s, rad/s (base-frame angular velocity), openness/s.
-    * Every function accepts a leading batch axis on all of its arrays.
+    * Public functions accept a leading batch shape on all of their arrays; inside the kernel
+      arrays are dimension-first (`allocation.py`) and in rows form (`se3.py`).
 """
 
 from dsteleop.arbitration.arbiters import (
-    ARBITERS,
     STEP_ARRAYS,
     Arbiter,
     ArbitrationInput,
     ArbitrationStep,
-    Autonomous,
-    DimensionSpecific,
-    Manual,
+    FilterState,
     Mode,
-    Standard,
     make_arbiter,
 )
 from dsteleop.arbitration.config import ArbitrationConfig, InvalidConfig
@@ -33,29 +37,27 @@ from dsteleop.arbitration.se3 import (
     diff,
     dim_names,
     integrate,
+    log_relative,
     saturate,
     so3_exp,
     so3_log,
 )
 
 __all__ = [
-    "ARBITERS",
     "STEP_ARRAYS",
     "Arbiter",
     "ArbitrationConfig",
     "ArbitrationInput",
     "ArbitrationStep",
-    "Autonomous",
-    "DimensionSpecific",
+    "FilterState",
     "HandState",
     "InvalidConfig",
-    "Manual",
     "Mode",
     "OperatorHistory",
-    "Standard",
     "diff",
     "dim_names",
     "integrate",
+    "log_relative",
     "make_arbiter",
     "saturate",
     "so3_exp",

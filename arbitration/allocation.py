@@ -1,4 +1,10 @@
-"""Expected control allocation, eq (3)-(5), and the willingness B of eq (6)-(8).
+"""Eq (3)-(8): who gets how much authority, per dimension. The one implementation.
+
+Arrays are dimension-first, (D, ...), D = 6 + F dimensions (x, y, z [m], rx, ry, rz [rad]
+rotation-vector components in the base frame, then F fingers), with any batch after them:
+the arbitration kernel calls these with rows of M trajectories (`se3` rows form), a batch of
+one in the 30 Hz loop and thousands in the simulation study. (A single (D,) vector is the
+same in either layout.)
 
 Standard controller (S), eq (3), one alpha for every dimension from position only:
 
@@ -16,7 +22,8 @@ Expected speed change, eq (6), per agent and dimension, unitless:
     psi_i = U_i / vmax_i - u(cur, prev)_i - u(cur, start)_i + mean_n u(terminal_n, start_n)_i
 
 with u(a, b) = diff(a, b) / |diff(a, b)|_2 over the dimension's group (translation, rotation,
-fingers) and 0 when that norm is below the group's eps. The states are the agent's own.
+fingers) and 0 when that norm is below the group's eps. The states are the agent's own: the
+hand's poses for psi_human, the robot's for psi_robot.
 
 Willingness, eq (7): the beta-prime density with shapes p, q and scale
 sigma = b * r * (q - 1) / p, whose mean is b * r, evaluated at |psi_human| and divided by its
@@ -35,45 +42,56 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.special import erf
+from scipy.special import erfc
 
-from dsteleop.arbitration.se3 import ROT, group_norms
+from dsteleop.arbitration.se3 import FING, ROT, TRANS, norms_rows
 
 Array = NDArray[np.float64]
 
 
+def _col(v: Array, like: Array) -> Array:
+    """A per-dimension vector (D',) shaped to broadcast over the batch axes of `like`."""
+    return v.reshape(v.shape + (1,) * (like.ndim - 1))
+
+
 def standard_alpha(p_goal: Array, p_cur: Array, p_start: Array, eps_m: float) -> Array:
-    """Eq (3): one alpha per state from the L1 position distances, shape (...)."""
-    num = np.abs(p_goal - p_cur).sum(-1)
-    den = np.maximum(np.abs(p_goal - p_start).sum(-1), eps_m)
-    return np.asarray(1.0 - erf(num / den))
+    """Eq (3): one alpha per state from the L1 position distances, (3, ...) -> (...)."""
+    num = np.abs(p_goal - p_cur).sum(0)
+    den = np.maximum(np.abs(p_goal - p_start).sum(0), eps_m)
+    return np.asarray(erfc(num / den))
 
 
 def expected_allocation(
     d_goal_agent: Array, d_goal_start: Array, eps: Array, kappa: float
 ) -> Array:
-    """Eq (4)/(5): P(A_i) for every dimension, (..., 6 + F).
+    """Eq (4)/(5): P(A_i) for every dimension, (6 + F, ...).
 
     Args:
-        d_goal_agent: diff(X_goal, X_agent), (..., 6 + F).
-        d_goal_start: diff(X_goal, X_start); its rotation entries are not used.
+        d_goal_agent: diff(X_goal, X_agent), (6 + F, ...).
+        d_goal_start: diff(X_goal, X_start), broadcastable to it; rotation entries unused.
         eps: (6 + F,) floors of the denominators.
         kappa: von Mises concentration.
     """
-    linear = 1.0 - erf(np.abs(d_goal_agent) / np.maximum(np.abs(d_goal_start), eps))
-    linear[..., ROT] = np.exp(kappa * (np.cos(d_goal_agent[..., ROT]) - 1.0))
-    return np.asarray(linear)
+    P = np.empty(np.broadcast_shapes(d_goal_agent.shape, d_goal_start.shape))
+    for g in (TRANS, FING):
+        den = np.maximum(np.abs(d_goal_start[g]), _col(eps[g], d_goal_start))
+        P[g] = erfc(np.abs(d_goal_agent[g]) / den)
+    P[ROT] = np.exp(kappa * (np.cos(d_goal_agent[ROT]) - 1.0))
+    return P
 
 
 def unit_directions(d: Array, eps: Array) -> Array:
-    """u(a, b) of eq (6) from d = diff(a, b): each group divided by its norm, 0 below eps."""
-    n = group_norms(d)[..., _GROUP_OF_DIM[: d.shape[-1]]]
-    ok = n >= eps
-    return np.asarray(np.where(ok, d / np.where(ok, n, 1.0), 0.0))
-
-
-# Group index (0 translation, 1 rotation, 2 fingers) of each dimension; fingers repeat.
-_GROUP_OF_DIM = np.array([0, 0, 0, 1, 1, 1] + [2] * 64)
+    """u(a, b) of eq (6) from d = diff(a, b) (6 + F, ...): each group over its norm, 0 below
+    the group's eps."""
+    out = np.zeros_like(d)
+    for g in (TRANS, ROT, FING):
+        dg = d[g]
+        if dg.shape[0] == 0:
+            continue
+        n = norms_rows(dg)
+        ok = n >= eps[g.start]
+        out[g] = np.where(ok, dg / np.where(ok, n, 1.0), 0.0)
+    return out
 
 
 def expected_speed_change(
@@ -81,16 +99,15 @@ def expected_speed_change(
     v_max: Array,
     d_cur_prev: Array,
     d_cur_start: Array,
-    history_term: Array,
+    history_term: Array | None,
     eps: Array,
 ) -> Array:
-    """Eq (6): psi for one agent, (..., 6 + F)."""
-    return np.asarray(
-        U / v_max
-        - unit_directions(d_cur_prev, eps)
-        - unit_directions(d_cur_start, eps)
-        + history_term
-    )
+    """Eq (6): psi, (6 + F, ...), for one agent or for several along a batch axis."""
+    psi = U / _col(v_max, U) - unit_directions(d_cur_prev, eps)
+    psi -= unit_directions(d_cur_start, eps)
+    if history_term is not None:
+        psi += _col(np.asarray(history_term, dtype=np.float64), U)
+    return psi
 
 
 def willingness(
@@ -101,10 +118,10 @@ def willingness(
     # z = 0 gives B = 0 (p > 1); the floor keeps log finite and exp underflows to exactly 0.
     z = np.maximum(np.abs(psi_human) / sigma, 1e-300)
     zm = (p - 1.0) / (q + 1.0)
-    log_b = (p - 1.0) * np.log(z * (1.0 / zm)) - (p + q) * np.log1p(z) + (p + q) * np.log1p(zm)
+    log_b = (p - 1.0) * np.log(z / zm) - (p + q) * (np.log1p(z) - np.log1p(zm))
     return np.asarray(np.exp(log_b))
 
 
 def ds_alpha(P_robot: Array, P_human: Array, B: Array) -> Array:
     """Eq (8): alpha_i = clip((P(R_i) - P(H_i)) * B_i + P(H_i), 0, 1)."""
-    return np.asarray(np.minimum(np.maximum((P_robot - P_human) * B + P_human, 0.0), 1.0))
+    return np.asarray(np.clip((P_robot - P_human) * B + P_human, 0.0, 1.0))

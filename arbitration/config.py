@@ -15,11 +15,16 @@ Defaults (and why):
                       max(|psi_robot|, psi_robot_floor) (0.25: a quarter of a unit direction,
                       the scale of psi), so B stays finite, and an operator who is not changing
                       speed while the robot is not either gets B ~ 0 (control goes to them).
+    max_lead_m/_rad   eq (2) integrates the commanded reference, which may lead the achieved
+                      palm by at most 3 cm / 0.25 rad (`policy.advance_reference`): a robot
+                      that lags its position controller keeps the hand's full motion, and one
+                      blocked by the table does not wind the reference up.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 from dataclasses import dataclass
@@ -28,9 +33,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from dsteleop.errors import ConfigError
 
-class InvalidConfig(ValueError):
-    """A hyper-parameter is out of its domain; the message names it."""
+#: A hyper-parameter out of its domain (the project's `ConfigError`; the message names it).
+InvalidConfig = ConfigError
 
 
 @dataclass(frozen=True)
@@ -52,6 +58,8 @@ class ArbitrationConfig:
     eps_rot_rad: float = 1e-3
     eps_finger: float = 1e-3
     psi_robot_floor: float = 0.25
+    max_lead_m: float = 0.03
+    max_lead_rad: float = 0.25
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -68,8 +76,8 @@ class ArbitrationConfig:
             raise InvalidConfig(f"window must be an integer >= 1, got {self.window!r}")
 
     def replace(self, **changes: Any) -> ArbitrationConfig:
-        """A copy with some fields changed (validated)."""
-        return dataclasses.replace(self, **changes)
+        """A copy with some fields changed (validated; an unknown name is a ConfigError)."""
+        return ArbitrationConfig.from_dict({**self.to_dict(), **changes})
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -79,8 +87,15 @@ class ArbitrationConfig:
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(data) - names)
         if unknown:
-            raise InvalidConfig(f"unknown arbitration parameter(s): {', '.join(unknown)}")
+            known = ", ".join(sorted(names))
+            raise InvalidConfig(
+                f"unknown arbitration parameter(s): {', '.join(unknown)} (known: {known})"
+            )
         return cls(**data)
+
+    @classmethod
+    def field_names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in dataclasses.fields(cls))
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), sort_keys=True)
@@ -103,5 +118,9 @@ class ArbitrationConfig:
         return _per_dim(self.eps_trans_m, self.eps_rot_rad, self.eps_finger, n_fingers)
 
 
+@functools.lru_cache(maxsize=256)
 def _per_dim(trans: float, rot: float, finger: float, n_fingers: int) -> NDArray[np.float64]:
-    return np.concatenate([np.full(3, trans), np.full(3, rot), np.full(n_fingers, finger)])
+    """[trans] * 3 + [rot] * 3 + [finger] * F, read-only (cached: asked for every tick)."""
+    v = np.concatenate([np.full(3, trans), np.full(3, rot), np.full(n_fingers, finger)])
+    v.flags.writeable = False
+    return v

@@ -52,7 +52,8 @@ class OperatorHistory:
             return np.zeros(dim)
         starts = HandState.from_rotvec(*_split([a.start for a in usable]))
         terms = HandState.from_rotvec(*_split([a.terminal for a in usable]))
-        return np.asarray(unit_directions(diff(terms, starts), eps).mean(0))
+        # unit_directions is dimension-first: (6 + F, N) in, the mean over the N attempts out.
+        return np.asarray(unit_directions(diff(terms, starts).T, eps).mean(-1))
 
     def to_dict(self) -> dict[str, Any]:
         return {

@@ -1,4 +1,4 @@
-"""Metrics of the paper's Section IV-D (DESIGN.md §4): pure numpy/scipy, no I/O, no clock.
+"""Metrics of the paper's Section IV-D (docs/METHOD.md §7): pure numpy/scipy, no I/O, no clock.
 
 Assistance quality, per action (one tick, one (6 + F) velocity vector):
 

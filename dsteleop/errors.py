@@ -1,5 +1,21 @@
-"""Errors that reach the user as one clear line (the CLI prints them, exit code 2)."""
+"""The one error family that reaches the user as one clear line (exit code 2, no traceback).
+
+    DsteleopError        base: the CLI catches it, prints its message and exits 2
+      ConfigError        a setting or hyper-parameter out of its domain (the message names it)
+      InputError         bad input: a missing, corrupt or unsupported file, a camera that
+                         does not open, a malformed session, a port in use
+
+Anything else that escapes is a bug and keeps its traceback.
+"""
 
 
 class DsteleopError(Exception):
     """Bad input or environment: the message is shown to the user as is, without a traceback."""
+
+
+class ConfigError(DsteleopError, ValueError):
+    """A configuration value is out of its domain; the message names the field."""
+
+
+class InputError(DsteleopError):
+    """Input the program cannot use: a file, a camera, a session, an address."""

@@ -42,11 +42,11 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 
 import numpy as np
-import pybullet as pb
 from numpy.typing import NDArray
 
 from dsteleop.arbitration.se3 import HandState
-from dsteleop.errors import DsteleopError
+from dsteleop.errors import ConfigError, InputError
+from dsteleop.robot.bullet import pb
 from dsteleop.robot.hand_urdf import FINGER_NAMES, JOINT_OPEN_CLOSED_RAD, PALM_LINK
 from dsteleop.robot.kinematics import ArmChain
 from dsteleop.robot.model import ARM_JOINTS, JointInfo, LoadedRobot
@@ -145,7 +145,7 @@ class RobotConfig:
         for name in ("substeps", "solver_iterations", "ik_iterations"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise DsteleopError(f"robot config: {name} must be an integer >= 1, got {v!r}")
+                raise ConfigError(f"robot config: {name} must be an integer >= 1, got {v!r}")
         for name in (
             "ik_tol_m",
             "ik_tol_rad",
@@ -163,10 +163,10 @@ class RobotConfig:
         ):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-                raise DsteleopError(f"robot config: {name} must be finite and > 0, got {v!r}")
+                raise ConfigError(f"robot config: {name} must be finite and > 0, got {v!r}")
         missing = sorted(set(ARM_JOINTS) - set(self.rest_posture_rad))
         if missing:
-            raise DsteleopError(f"robot config: rest_posture_rad lacks joint {missing[0]!r}")
+            raise ConfigError(f"robot config: rest_posture_rad lacks joint {missing[0]!r}")
 
     @property
     def physics_dt_s(self) -> float:
@@ -234,9 +234,9 @@ def _det3(R: Array) -> float:
 def _as_vec(x: object, n: int, name: str) -> Array:
     a = np.asarray(x, dtype=np.float64)
     if a.shape != (n,):
-        raise DsteleopError(f"{name} must have shape ({n},), got {a.shape}")
+        raise InputError(f"{name} must have shape ({n},), got {a.shape}")
     if not np.isfinite(a).all():
-        raise DsteleopError(f"{name} must be finite, got {a.tolist()}")
+        raise InputError(f"{name} must be finite, got {a.tolist()}")
     return a
 
 
@@ -363,7 +363,7 @@ class Robot:
         """Teleport the joints to an IK solution of a palm pose (no dynamics), motors holding.
 
         Raises:
-            DsteleopError: if the pose is not reachable.
+            InputError: if the pose is not reachable.
         """
         p_m = _as_vec(p_m, 3, "position")
         g = np.clip(_as_vec(openness, len(FINGER_NAMES), "openness"), 0.0, 1.0)
@@ -371,7 +371,7 @@ class Robot:
             p_m, np.asarray(R, dtype=np.float64), self._q_rest, self._q_rest, iterations=100
         )
         if res.error_m > self.config.unreachable_tol_m:
-            raise DsteleopError(f"reset pose {p_m.tolist()} is not reachable")
+            raise InputError(f"reset pose {p_m.tolist()} is not reachable")
         self._q_arm_cmd = res.q_rad
         for k, j in enumerate(self._arm):
             pb.resetJointState(self._body, j.index, float(res.q_rad[k]), physicsClientId=self._c)
@@ -393,17 +393,17 @@ class Robot:
             openness: (F,) finger openness in [0, 1], order `finger_names` (clipped).
 
         Raises:
-            DsteleopError: on wrong shapes or non-finite values.
+            InputError: on wrong shapes or non-finite values.
         """
         self._state_cache = None
         p = _as_vec(position_m, 3, "position")
         R = np.asarray(rotation, dtype=np.float64)
         if R.shape != (3, 3) or not np.isfinite(R).all():
-            raise DsteleopError(f"rotation must be a finite 3x3 matrix, got shape {R.shape}")
+            raise InputError(f"rotation must be a finite 3x3 matrix, got shape {R.shape}")
         g = np.clip(_as_vec(openness, len(FINGER_NAMES), "openness"), 0.0, 1.0)
         # R^T R = I and det R = +1 (the triple product, not LAPACK: see kinematics._solve_spd)
         if float(np.abs(R.T @ R - np.eye(3)).max()) > 1e-3 or _det3(R) < 0.0:
-            raise DsteleopError("rotation must be a proper rotation matrix (R^T R = I, det +1)")
+            raise InputError("rotation must be a proper rotation matrix (R^T R = I, det +1)")
         p_c, self._clamped = self.config.workspace.clamp(p)
         q = self._solve_ik(p_c, R, self.config.ik_iterations)
         if np.isfinite(q).all():
@@ -617,7 +617,7 @@ class Robot:
         q_by_index = {i: float(s[0]) for i, s in zip(self._all_idx, states, strict=True)}
         joints = {n: q_by_index[j.index] for n, j in self._r.joints.items()}
         if not (np.isfinite(p).all() and np.isfinite(R).all()):  # pragma: no cover - guard
-            raise DsteleopError("simulation diverged: palm pose is not finite")
+            raise InputError("simulation diverged: palm pose is not finite")
         return RobotState(
             palm=HandState(p, R, self._openness_cmd.copy()),
             openness_measured=self.openness_measured(q_by_index),

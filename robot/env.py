@@ -21,11 +21,11 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
-import pybullet as pb
 from numpy.typing import NDArray
 
-from dsteleop.errors import DsteleopError
+from dsteleop.errors import ConfigError, InputError
 from dsteleop.robot.arm import CONTROL_DT_S, Robot, RobotConfig, RobotState
+from dsteleop.robot.bullet import pb
 from dsteleop.robot.hand_urdf import FINGER_NAMES
 from dsteleop.robot.kinematics import ArmChain
 from dsteleop.robot.model import ARM_JOINTS, LoadedRobot, load_robot, robot_urdf_text
@@ -142,14 +142,14 @@ class KitchenEnv:
             The robot's state at the start of the run.
 
         Raises:
-            DsteleopError: for an unknown utensil.
+            ConfigError: for an unknown utensil.
         """
         if utensil not in UTENSILS:
-            raise DsteleopError(
+            raise ConfigError(
                 f"unknown utensil {utensil!r} (choose from {', '.join(UTENSIL_NAMES)})"
             )
         if self._c < 0:
-            raise DsteleopError("environment is closed")
+            raise InputError("environment is closed")
         c = self._c
         pb.resetSimulation(physicsClientId=c)
         pb.setGravity(0.0, 0.0, -GRAVITY_MPS2, physicsClientId=c)
@@ -187,21 +187,21 @@ class KitchenEnv:
     def robot(self) -> Robot:
         """The robot (after `reset`)."""
         if self._robot is None:
-            raise DsteleopError("call reset() first")
+            raise InputError("call reset() first")
         return self._robot
 
     @property
     def task(self) -> PickPlaceTask:
         """The running task: goal, X_start, phase, events, outcome (after `reset`)."""
         if self._task is None:
-            raise DsteleopError("call reset() first")
+            raise InputError("call reset() first")
         return self._task
 
     @property
     def world(self) -> WorldBodies:
         """Body ids of the scene (after `reset`)."""
         if self._world is None:
-            raise DsteleopError("call reset() first")
+            raise InputError("call reset() first")
         return self._world
 
     @property

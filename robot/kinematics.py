@@ -22,15 +22,14 @@ controller: what one tick leaves, the next one removes.
 
 from __future__ import annotations
 
-import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
-from dsteleop.arbitration.se3 import so3_exp, so3_log
-from dsteleop.errors import DsteleopError
+from dsteleop.arbitration.se3 import log_relative, so3_exp
+from dsteleop.errors import InputError
 
 Array = NDArray[np.float64]
 
@@ -55,18 +54,6 @@ def _origin(el: ET.Element) -> Array:
         T[:3, :3] = _rpy_to_R(*rpy)
         T[:3, 3] = xyz
     return T
-
-
-def rotvec_of(R: Array) -> Array:
-    """Rotation vector [rad] of one 3x3 rotation matrix (scalar fast path of `so3_log`)."""
-    tr = R[0, 0] + R[1, 1] + R[2, 2]
-    c = max(-1.0, min(1.0, 0.5 * (tr - 1.0)))
-    if c < -1.0 + 1e-6:
-        return np.asarray(so3_log(R), dtype=np.float64)  # ~pi: the general code
-    th = math.acos(c)
-    # theta / (2 sin theta), with its series near 0 (1/2 + theta^2 / 12)
-    k = 0.5 + th * th / 12.0 if th < 1e-4 else 0.5 * th / math.sin(th)
-    return np.array([k * (R[2, 1] - R[1, 2]), k * (R[0, 2] - R[2, 0]), k * (R[1, 0] - R[0, 1])])
 
 
 def _solve_spd(A: Array, b: Array) -> Array:
@@ -135,7 +122,7 @@ class ArmChain:
         for n in (*joint_names, tip_joint):
             j = joints.get(n)
             if j is None:
-                raise DsteleopError(f"URDF has no joint {n!r}")
+                raise InputError(f"URDF has no joint {n!r}")
             fixed.append(_origin(j))
             if n == tip_joint:
                 continue
@@ -145,7 +132,7 @@ class ArmChain:
             )
             lim = j.find("limit")
             if lim is None:
-                raise DsteleopError(f"URDF joint {n!r} has no limits")
+                raise InputError(f"URDF joint {n!r} has no limits")
             lo.append(float(lim.get("lower", "0")))
             hi.append(float(lim.get("upper", "0")))
         return cls(
@@ -241,7 +228,7 @@ class ArmChain:
         used = 0
         J, p, R = self.jacobian(q)
         e_p = p_target_m - p
-        e_r = rotvec_of(R_target @ R.T)
+        e_r = log_relative(R_target, R)
         while True:
             converged = float(e_p @ e_p) < tol_m * tol_m and float(e_r @ e_r) < tol_rad * tol_rad
             if converged or used == iterations:
@@ -268,5 +255,5 @@ class ArmChain:
             q = q_new
             J, p, R = self.jacobian(q)
             e_p = p_target_m - p
-            e_r = rotvec_of(R_target @ R.T)
+            e_r = log_relative(R_target, R)
         return IKResult(q, float(np.linalg.norm(e_p)), float(np.linalg.norm(e_r)), used)

@@ -14,10 +14,10 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
-import pybullet as pb
 import pybullet_data
 
-from dsteleop.errors import DsteleopError
+from dsteleop.errors import InputError
+from dsteleop.robot.bullet import pb
 from dsteleop.robot.hand_urdf import ASSET_PATH, MOUNT_PARENT_LINK, PALM_LINK
 
 ARM_URDF = "kuka_iiwa/model.urdf"
@@ -30,7 +30,7 @@ def robot_urdf_text() -> str:
     data = Path(pybullet_data.getDataPath())
     arm_path = data / ARM_URDF
     if not arm_path.is_file():
-        raise DsteleopError(f"pybullet_data has no {ARM_URDF} (is pybullet installed fully?)")
+        raise InputError(f"pybullet_data has no {ARM_URDF} (is pybullet installed fully?)")
     arm = ET.parse(arm_path).getroot()
     for mesh in arm.iter("mesh"):
         fn = mesh.get("filename", "")

@@ -1,15 +1,12 @@
 """The scripted autonomous run: alpha = 1, the goal-seeking policy alone, noise-free goals.
 
 It is the smoke test that the world is solvable, and it drives the robot exactly as the
-control loop will at alpha = 1, with the arbitration's own SE(3) operations and gains:
+control loop does at alpha = 1: the autonomous arbiter (`arbitration.arbiters`) gives
 
-    U_robot   = saturate(K_r * diff(X_goal, X_current), v_max)      (ArbitrationConfig)
+    U_robot   = sat(K_r * diff(X_goal, X_current))                  (arbitration.policy)
     X_next    = integrate(X_current, U_robot, dt)                    eq (2) with alpha = 1
     env.set_target(X_next.position, X_next.rotation, X_next.openness)
     X_current = env.step().palm
-
-which is what `make_arbiter("autonomous")` computes for X_next (U_out = U_robot); the
-policy is written out here so the smoke test depends only on `arbitration.se3`.
 """
 
 from __future__ import annotations
@@ -18,8 +15,8 @@ import dataclasses
 import time
 from dataclasses import dataclass
 
+from dsteleop.arbitration import ArbitrationInput, HandState, Mode, make_arbiter
 from dsteleop.arbitration.config import ArbitrationConfig
-from dsteleop.arbitration.se3 import HandState, diff, integrate, saturate
 from dsteleop.robot.env import EnvConfig, KitchenEnv
 from dsteleop.robot.task import Outcome, TaskEvent
 
@@ -62,10 +59,12 @@ def goal_seeking_step(
     config: ArbitrationConfig | None = None,
 ) -> HandState:
     """X_next of the goal-seeking policy alone (alpha = 1), see the module docstring."""
-    cfg = config or ArbitrationConfig()
-    F = X_current.n_fingers
-    U = saturate(cfg.gains(F) * diff(X_goal, X_current), cfg.v_max(F))
-    return integrate(X_current, U, dt_s)
+    arbiter = make_arbiter(Mode.AUTONOMOUS, config)
+    X = X_current
+    _, step = arbiter.step(
+        arbiter.initial_state(6 + X.n_fingers), ArbitrationInput(X, X, X, X, X, X, X_goal, dt_s)
+    )
+    return step.X_next
 
 
 def run_autonomous(

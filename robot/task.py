@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dsteleop.arbitration.se3 import HandState, so3_exp, so3_log
-from dsteleop.errors import DsteleopError
+from dsteleop.errors import ConfigError
 
 Array = NDArray[np.float64]
 
@@ -120,7 +120,7 @@ class TaskConfig:
         for name in ("goal_noise_pos_m", "goal_noise_rot_rad"):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-                raise DsteleopError(f"task config: {name} must be finite and >= 0, got {v!r}")
+                raise ConfigError(f"task config: {name} must be finite and >= 0, got {v!r}")
         for name in (
             "timeout_s",
             "close_radius_m",
@@ -130,11 +130,11 @@ class TaskConfig:
         ):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-                raise DsteleopError(f"task config: {name} must be finite and > 0, got {v!r}")
+                raise ConfigError(f"task config: {name} must be finite and > 0, got {v!r}")
         for name in ("grasp_hold_ticks", "rest_ticks"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise DsteleopError(f"task config: {name} must be an integer >= 1, got {v!r}")
+                raise ConfigError(f"task config: {name} must be an integer >= 1, got {v!r}")
 
 
 @dataclass(frozen=True)

@@ -22,10 +22,10 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
-import pybullet as pb
 from numpy.typing import NDArray
 
-from dsteleop.arbitration.se3 import so3_exp
+from dsteleop.arbitration.se3 import matrix_from_quat_wxyz, quat_wxyz_from_matrix, so3_exp
+from dsteleop.robot.bullet import pb
 
 Array = NDArray[np.float64]
 
@@ -150,44 +150,21 @@ def T_utensil_grasp(spec: UtensilSpec) -> tuple[Array, Array]:
 
 
 def quat_xyzw_from_R(R: Array) -> tuple[float, float, float, float]:
-    """PyBullet's xyzw quaternion of a rotation matrix (boundary helper)."""
-    w, x, y, z = quat_wxyz_from_R(R)
+    """PyBullet's xyzw quaternion of a rotation matrix (the boundary's order)."""
+    w, x, y, z = (float(v) for v in quat_wxyz_from_matrix(R))
     return (x, y, z, w)
 
 
 def quat_wxyz_from_R(R: Array) -> tuple[float, float, float, float]:
-    """Unit quaternion (w, x, y, z) of a rotation matrix, w >= 0."""
-    m = np.asarray(R, dtype=np.float64)
-    tr = m[0, 0] + m[1, 1] + m[2, 2]
-    if tr > 0.0:
-        s = 2.0 * np.sqrt(tr + 1.0)
-        q = (0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s)
-    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
-        q = ((m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s)
-    elif m[1, 1] > m[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
-        q = ((m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s)
-    else:
-        s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
-        q = ((m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s)
-    qa = np.array(q, dtype=np.float64)
-    qa /= np.linalg.norm(qa)
-    if qa[0] < 0.0:
-        qa = -qa
-    return (float(qa[0]), float(qa[1]), float(qa[2]), float(qa[3]))
+    """Unit quaternion (w, x, y, z), w >= 0, of a rotation matrix."""
+    w, x, y, z = (float(v) for v in quat_wxyz_from_matrix(R))
+    return (w, x, y, z)
 
 
 def R_from_quat_xyzw(q: tuple[float, ...] | list[float]) -> Array:
     """Rotation matrix of PyBullet's xyzw quaternion."""
     x, y, z, w = (float(v) for v in q)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+    return matrix_from_quat_wxyz(np.array([w, x, y, z]))
 
 
 @dataclass

@@ -10,13 +10,15 @@ import sys
 
 import numpy as np
 
-from dsteleop.app.bench_arbitration import _tick_like
+from dsteleop.app.bench.arbitration import _tick_like
 from dsteleop.arbitration import make_arbiter
+
+CLI = [sys.executable, "-m", "dsteleop.app.cli.main"]
 
 
 def test_quick_bench_prints_every_arbitration_figure() -> None:
     r = subprocess.run(
-        [sys.executable, "-m", "dsteleop.app.cli", "bench", "--only", "arbitration", "--quick"],
+        [*CLI, "bench", "--only", "arbitration", "--quick"],
         capture_output=True,
         text=True,
         timeout=300,
@@ -25,7 +27,10 @@ def test_quick_bench_prints_every_arbitration_figure() -> None:
     out = json.loads(r.stdout)
     assert out["ds_step_us"]["n"] == 2000
     assert 0 < out["ds_step_us"]["median"] <= out["ds_step_us"]["p99"]
+    # the headline batched figure: 1000 trajectories of 6 + 5 dims per call
+    assert out["ds_batched_call_ms"]["batch"] == 1000 and out["ds_batched_call_ms"]["dims"] == 11
     cases = out["ds_batched_by_case"]
+    assert out["ds_batched_call_ms"]["median"] == cases["11_dims_random"]["call_ms_median"]
     assert set(cases) == {
         "11_dims_random",
         "11_dims_tick_like",

@@ -7,13 +7,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from dsteleop.arbitration import HandState, so3_log
-from dsteleop.tracking.operator_model import (
+from dsteleop.app.operator.open_loop import (
     OperatorStrategy,
     min_jerk,
     sample_trajectory,
     stack,
 )
+from dsteleop.arbitration import HandState, so3_log
 
 DT = 1.0 / 30.0
 PLANAR = OperatorStrategy(noise_dims=(True, True, False, False, False, True))

@@ -1,4 +1,5 @@
-"""Packaging: one `dsteleop` distribution, no top-level name collisions, headless cv2."""
+"""Packaging: one `dsteleop` distribution with every app subpackage and the web assets as
+package data, no top-level name collisions, headless cv2, an instant `--help`."""
 
 from __future__ import annotations
 
@@ -14,6 +15,27 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 UV = REPO / ".tools" / "bin" / "uv"
+#: Every app/ folder with an __init__.py (the tree is the truth; these must be among them).
+APP_SUBPACKAGES = tuple(sorted(p.parent.name for p in (REPO / "app").glob("*/__init__.py")))
+REQUIRED_SUBPACKAGES = {
+    "bench", "cli", "inputs", "loop", "plants", "replay", "session", "study", "viewer",
+}  # fmt: skip
+WEB_ASSETS = ("dsteleop.css", "gauge_row.html", "status.html", "gauges_head.html")
+
+
+def test_the_package_list_names_every_app_subpackage() -> None:
+    """pyproject lists the packages by hand: every app/ subpackage must be in that list."""
+    tomllib = pytest.importorskip("tomllib")  # Python 3.11+
+
+    listed = set(
+        tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
+    )
+    assert REQUIRED_SUBPACKAGES <= set(APP_SUBPACKAGES)
+    missing = {f"dsteleop.app.{n}" for n in APP_SUBPACKAGES} - listed
+    assert not missing, f"not in [tool.setuptools] packages: {sorted(missing)}"
+    assert "dsteleop.web_assets" in listed
+    for name in WEB_ASSETS:
+        assert (REPO / "web_assets" / name).is_file(), name
 
 
 def test_cv2_comes_from_the_headless_build_only() -> None:
@@ -36,19 +58,38 @@ def test_mediapipe_is_the_pinned_release_with_bundled_hand_models() -> None:
     assert any(models.glob("hand_landmark_lite.tflite")), "lite hand model missing from the wheel"
 
 
-def test_cli_help_is_instant_and_imports_nothing_heavy() -> None:
-    code = (
-        "import sys; from dsteleop.app import cli\n"
-        "assert 'bench' in cli.build_parser().format_help()\n"
-        "print(','.join(m for m in ('mediapipe', 'pybullet', 'viser', 'cv2')"
-        " if m in sys.modules))\n"
+#: Prints the `dsteleop --help` and `dsteleop run --help` texts, then the heavy modules they
+#: loaded ("loaded: a,b"; empty when none).
+HELP_PROBE = """
+import contextlib, sys
+from dsteleop.app.cli.main import build_parser, main
+assert 'bench' in build_parser().format_help()
+for argv in (['--help'], ['run', '--help']):
+    with contextlib.suppress(SystemExit):
+        main(argv)
+heavy = ('mediapipe', 'pybullet', 'viser', 'cv2')
+print('loaded:' + ','.join(m for m in heavy if m in sys.modules))
+"""
+BANNER = "pybullet build time"
+
+
+def check_help_probe(python: str | Path, cwd: Path | None = None) -> None:
+    """`dsteleop --help` and `dsteleop run --help` load no heavy module and print no banner."""
+    out = subprocess.run(
+        [str(python), "-c", HELP_PROBE], capture_output=True, text=True, cwd=cwd, timeout=120
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == ""
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().splitlines()[-1] == "loaded:", out.stdout
+    assert "--max-seconds" in out.stdout  # run's own options were listed
+    assert BANNER not in out.stdout + out.stderr
+
+
+def test_cli_help_is_instant_and_imports_nothing_heavy() -> None:
+    check_help_probe(sys.executable)
 
 
 def test_unknown_command_and_bad_bench_group_are_one_line_errors() -> None:
-    exe = [sys.executable, "-m", "dsteleop.app.cli"]
+    exe = [sys.executable, "-m", "dsteleop.app.cli.main"]
     r = subprocess.run([*exe, "nosuchcommand"], capture_output=True, text=True)
     assert r.returncode == 2 and "invalid choice" in r.stderr and "Traceback" not in r.stderr
     r = subprocess.run([*exe, "bench", "--only", "nosuchgroup"], capture_output=True, text=True)
@@ -69,8 +110,19 @@ def test_wheel_installs_in_a_fresh_environment_and_runs(tmp_path: Path) -> None:
         capture_output=True,
     )
     wheel = next(dist.glob("dsteleop-*.whl"))
-    tops = {n.split("/")[0] for n in zipfile.ZipFile(wheel).namelist()}
+    names = set(zipfile.ZipFile(wheel).namelist())
+    tops = {n.split("/")[0] for n in names}
     assert tops == {"dsteleop", wheel.name.split("-py3")[0] + ".dist-info"}
+    # Every module of every app subpackage (app/cli, app/loop, app/session, ...) is in it.
+    app_modules = {
+        "dsteleop/app/" + p.relative_to(REPO / "app").as_posix()
+        for p in (REPO / "app").rglob("*.py")
+        if "__pycache__" not in p.parts
+    }
+    assert {f"dsteleop/app/{sub}/__init__.py" for sub in APP_SUBPACKAGES} <= app_modules
+    assert app_modules <= names, sorted(app_modules - names)
+    # The browser view's stylesheet and templates, as package data.
+    assert {f"dsteleop/web_assets/{a}" for a in WEB_ASSETS} <= names
 
     # The locked dependency set, then the wheel alone, into a new virtualenv.
     req = tmp_path / "requirements.txt"
@@ -106,18 +158,29 @@ def test_wheel_installs_in_a_fresh_environment_and_runs(tmp_path: Path) -> None:
     )
 
     code = (
-        "import importlib.util, dsteleop, dsteleop.arbitration as a, dsteleop.app.cli\n"
+        "import importlib.util, dsteleop, dsteleop.arbitration as a, dsteleop.app.cli.main\n"
         "assert '/site-packages/dsteleop/' in a.__file__, a.__file__\n"
         "assert all(importlib.util.find_spec(n) is None"
         " for n in ('app', 'robot', 'tracking', 'arbitration'))\n"
+        f"assert all(importlib.util.find_spec('dsteleop.app.' + n) for n in {APP_SUBPACKAGES!r})\n"
+        "from importlib import resources\n"
+        "assets = resources.files('dsteleop.web_assets')\n"
+        "assert '/site-packages/dsteleop/web_assets' in str(assets), assets\n"
+        f"for name in {WEB_ASSETS!r}:\n"
+        "    assert assets.joinpath(name).read_text(encoding='utf-8').strip(), name\n"
         "import cv2, mediapipe; print(cv2.__version__)\n"
     )
     run = subprocess.run(
         [str(py), "-c", code], cwd=tmp_path, capture_output=True, text=True, env=env
     )
     assert run.returncode == 0, run.stderr
-    help_out = subprocess.run(
-        [str(venv / "bin" / "dsteleop"), "--help"], cwd=tmp_path, capture_output=True, text=True
-    )
-    assert help_out.returncode == 0 and "bench" in help_out.stdout
+    # The installed command: its help is instant (no PyBullet banner, nothing heavy loaded).
+    check_help_probe(py, cwd=tmp_path)
+    for argv in (["--help"], ["run", "--help"]):
+        help_out = subprocess.run(
+            [str(venv / "bin" / "dsteleop"), *argv], cwd=tmp_path, capture_output=True, text=True
+        )
+        assert help_out.returncode == 0, help_out.stderr
+        assert ("bench" if argv == ["--help"] else "--max-seconds") in help_out.stdout
+        assert BANNER not in help_out.stdout + help_out.stderr
     shutil.rmtree(venv)

@@ -14,15 +14,25 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from numpy.typing import NDArray
 
+from dsteleop.app.cli.compose import build
+from dsteleop.app.cli.options import LoopOptions
 from dsteleop.app.loop import LoopConfig
-from dsteleop.app.recording import read_session
-from dsteleop.app.replay import as_recorded, replay_session
-from dsteleop.app.run_cmd import run_headless
-from dsteleop.app.setup import HISTORY_FILE, Setup, build
+from dsteleop.app.replay.core import as_recorded, replay_session
+from dsteleop.app.session.reader import Session, read_session
+from dsteleop.app.session.schema import READABLE, SCHEMA
+from dsteleop.app.session.writer import HISTORY_FILE, TICKS
 from dsteleop.arbitration import STEP_ARRAYS, Mode, OperatorHistory
+from dsteleop.robot.task import EventKind
 
-CLI = [sys.executable, "-m", "dsteleop.app.cli"]
+CLI = [sys.executable, "-m", "dsteleop.app.cli.main"]
+RECORDINGS = Path(__file__).resolve().parents[1] / "recordings"
+
+
+def recorded_alphas(s: Session) -> NDArray[np.float64]:
+    """(arbitrated ticks, D) the alphas the session recorded."""
+    return np.array([r.step.alpha for r in s.records if r.step is not None])
 
 
 @pytest.fixture(scope="module")
@@ -31,13 +41,13 @@ def ds_session(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("sessions")
     folder = root / "demo-ds"
     built = build(
-        Setup(source="demo", loop=LoopConfig(mode=Mode.DS), realtime=False, history_dir=root)
+        LoopOptions.of("demo", LoopConfig(mode=Mode.DS)), realtime=False, history_dir=root
     )
     try:
         built.loop.start_recording(folder)
         # Until an outcome: the task's own timeout (120 s) ends a stuck run as a failure, so
         # the session always has one, whatever this machine's physics does with the grasp.
-        run_headless(built.loop, built.demo, max_ticks=3700)
+        built.loop.run_headless(max_ticks=3700)
     finally:
         built.loop.close()
     return folder
@@ -47,16 +57,24 @@ def test_session_files_and_metadata(ds_session: Path) -> None:
     s = read_session(ds_session)
     assert s.complete and not s.truncated
     meta = s.meta
-    assert meta["schema"] == "dsteleop.session/1"
+    assert meta["schema"] == SCHEMA == "dsteleop.session/2"
     assert meta["loop"]["arbitration"]["kappa"] == 4.0
     assert meta["mode"] == "DS" and meta["dims"][:6] == ["x", "y", "z", "roll", "pitch", "yaw"]
+    assert s.mode is Mode.DS and s.dims == tuple(meta["dims"])
     assert meta["plant"]["utensil"] == "spoon" and "pick_known" in meta["plant"]
-    assert meta["n_ticks"] == len(s.ticks) > 100
+    assert meta["n_ticks"] == len(s.records) > 100
     assert meta["outcome"] in ("success", "failure")
-    first = s.ticks[0]
+    # The file format: every key of a tick line (recordings/README.md).
+    lines = (ds_session / TICKS).read_text().splitlines()
+    first = json.loads(lines[0])
     for key in (
         "k",
         "t",
+        "mode",
+        "status",
+        "reason",
+        "phase",
+        "outcome",
         "hand",
         "X_current",
         "X_goal",
@@ -65,13 +83,21 @@ def test_session_files_and_metadata(ds_session: Path) -> None:
         "arb",
         "timing",
         "events",
+        "notes",
+        "X_reset",  # the first tick carries the state the task reset to
     ):
         assert key in first
-    arb = next(r["arb"] for r in s.ticks if r["arb"])
+    arb = next(d["arb"] for d in map(json.loads, lines) if d["arb"])
     for key in STEP_ARRAYS:
         assert len(arb[key]) == len(meta["dims"])
-    events = [e for r in s.ticks for e in r["events"]]
-    assert any(e.startswith("grasp") for e in events)
+    # The same, read back typed.
+    step = next(r.step for r in s.records if r.step is not None)
+    for key in STEP_ARRAYS:
+        assert getattr(step, key).shape == (len(meta["dims"]),)
+    events = [e for r in s.records for e in r.plant.events]
+    assert any(e.kind is EventKind.GRASP for e in events)
+    outcome = next(r.outcome for r in s.records if r.outcome is not None)
+    assert ("success" if outcome.success else "failure") == meta["outcome"]
     # The operator history persisted beside the session: one attempt per finished segment.
     hist = OperatorHistory.from_dict(json.loads((ds_session.parent / HISTORY_FILE).read_text()))
     assert len(hist) == 2
@@ -79,17 +105,17 @@ def test_session_files_and_metadata(ds_session: Path) -> None:
 
 def test_replay_in_the_recorded_mode_reproduces_every_alpha(ds_session: Path) -> None:
     s = read_session(ds_session)
-    recorded = np.array([r["arb"]["alpha"] for r in s.ticks if r["arb"]])
+    recorded = recorded_alphas(s)
     # Against the recorded robot (open loop, no physics): the same inputs, the same alphas.
     trace = replay_session(s, Mode.DS, robot="recorded")
-    np.testing.assert_allclose(trace.alpha[trace.arbitrated], recorded, atol=1e-9, rtol=0)
-    assert trace.outcome == s.meta["outcome"]
+    np.testing.assert_allclose(trace.step.alpha[trace.arbitrated], recorded, atol=1e-9, rtol=0)
+    assert trace.outcome_name == s.meta["outcome"]
     again = as_recorded(s)
-    np.testing.assert_allclose(again.alpha[again.arbitrated], recorded, atol=0, rtol=0)
+    np.testing.assert_allclose(again.step.alpha[again.arbitrated], recorded, atol=0, rtol=0)
     # Against a fresh simulated robot (closed loop): the same world and hand; contacts may
     # part ways in the last bits, so only the free-space reach is compared, to 1 mm.
     sim = replay_session(s, Mode.DS)
-    p_rec = np.array([r["X_current"][:3] for r in s.ticks])
+    p_rec = np.array([r.X_current.position for r in s.records])
     early = sim.t_s < 2.0
     assert early.sum() > 30
     np.testing.assert_allclose(sim.p_robot[early], p_rec[early], atol=1e-3)
@@ -131,7 +157,8 @@ def test_a_truncated_last_record_is_skipped_with_a_warning(
     ticks.write_bytes(data + data.splitlines(keepends=True)[-1][:40])  # half a record
     with caplog.at_level(logging.WARNING):
         s = read_session(copy)
-    assert s.truncated and len(s.ticks) == n
+    assert s.truncated and len(s.records) == n
+    assert not s.complete
     assert "truncated" in caplog.text
     replay_session(s, Mode.S)  # replays up to the last complete tick
 
@@ -200,9 +227,9 @@ def test_a_killed_recording_replays_up_to_its_last_complete_tick(tmp_path: Path)
         proc.wait(timeout=30)
     s = read_session(folder)
     assert not s.complete
-    assert len(s.ticks) >= 45
+    assert len(s.records) >= 45
     trace = replay_session(s, Mode.DS)
-    assert len(trace.t_s) == len(s.ticks)
+    assert len(trace.t_s) == len(s.records)
     r = subprocess.run(
         [*CLI, "replay", str(folder), "--modes", "DS", "--out", str(tmp_path / "o"), "--no-plots"],
         capture_output=True,
@@ -251,7 +278,7 @@ def test_a_video_session_records_its_frames_and_replays_retracked(
     )
     assert r.returncode == 0, r.stderr
     s = read_session(folder)
-    assert s.video is not None and (folder / "frames.jsonl").is_file()
+    assert s.video is not None and s.frames == folder / "frames.jsonl"
     out = tmp_path / "retracked"
     r = subprocess.run(
         [
@@ -270,11 +297,15 @@ def test_a_video_session_records_its_frames_and_replays_retracked(
         timeout=600,
     )
     assert r.returncode == 0, r.stderr
-    from dsteleop.app.video_session import replay_retracked
+    from dsteleop.app.replay.video import replay_retracked
 
     trace = replay_retracked(s, [Mode.DS])[0]
+    nan3 = np.full(3, np.nan)
     recorded = np.array(
-        [r["hand"]["X"][:3] if r["hand"] and r["hand"]["X"] else [np.nan] * 3 for r in s.ticks]
+        [
+            r.hand.X_human.position if r.hand is not None and r.hand.X_human is not None else nan3
+            for r in s.records
+        ]
     )
     both = ~np.isnan(recorded[:, 0]) & ~np.isnan(trace.p_human[:, 0])
     assert both.sum() > 100
@@ -283,17 +314,43 @@ def test_a_video_session_records_its_frames_and_replays_retracked(
     assert np.median(err) < 0.005, np.median(err)
 
 
-@pytest.mark.parametrize("name", ["demo-DS-spoon", "demo-S-spoon", "demo-manual-spoon"])
-def test_the_sample_sessions_are_current(name: str) -> None:
+GOLDEN_V1 = Path(__file__).resolve().parent / "golden" / "schema1-demo-DS-spoon"
+SAMPLES = sorted(p.name for p in RECORDINGS.iterdir() if (p / "meta.json").is_file())
+
+
+def test_a_session_recorded_before_the_format_change_opens_and_replays() -> None:
+    """The golden schema-1 session (tests/golden/README.md) opens, and replays against its
+    recorded robot: the same ticks, the same goals and actions, the same outcome. Only the
+    quantities behind eq (6)'s thresholds may differ from what it recorded: its rotations
+    came from PyBullet's single-precision quaternions unnormalised (orthonormal only to
+    ~1e-7; they are normalised now), on which the old and the current SO(3) logarithm
+    differ at 1e-7, and eq (6) gates small differences by a threshold, so such a change can
+    flip a unit direction."""
+    s = read_session(GOLDEN_V1)
+    assert s.meta["schema"] == "dsteleop.session/1" and s.complete
+    trace = replay_session(s, s.mode, robot="recorded")
+    assert len(trace) == len(s.records)
+    m = trace.arbitrated
+    assert m.sum() == sum(r.step is not None for r in s.records) > 400
+    for name in ("P_human", "P_robot", "U_human", "U_robot"):
+        recorded = np.array([getattr(r.step, name) for r in s.records if r.step is not None])
+        np.testing.assert_allclose(getattr(trace.step, name)[m], recorded, atol=1e-6, rtol=0)
+    assert np.isfinite(trace.step.alpha[m]).all() and np.isfinite(trace.step.B[m]).all()
+    assert trace.outcome_name == s.meta["outcome"] == "success"
+
+
+@pytest.mark.parametrize("folder", [RECORDINGS / n for n in SAMPLES], ids=str)
+def test_the_sample_sessions_are_current(folder: Path) -> None:
     """The shipped sessions, replayed in their own mode against their recorded robot, give
     the alphas they recorded: the loop and the arbitration still compute what they did.
     Open loop, so it holds on any CPU (a closed-loop replay through PyBullet would amplify
     last-bit differences between machines). When the code changes what a run does,
     regenerate them with scripts/make_sample_sessions.sh."""
-    folder = Path(__file__).resolve().parents[1] / "recordings" / name
+    assert len(SAMPLES) >= 3
     s = read_session(folder)
+    assert s.meta["schema"] in READABLE
     assert s.complete and s.meta["outcome"] in ("success", "failure")
-    recorded = np.array([r["arb"]["alpha"] for r in s.ticks if r["arb"]])
-    trace = replay_session(s, Mode.parse(s.meta["mode"]), robot="recorded")
-    np.testing.assert_allclose(trace.alpha[trace.arbitrated], recorded, atol=1e-9, rtol=0)
-    assert trace.outcome == s.meta["outcome"]
+    recorded = recorded_alphas(s)
+    trace = replay_session(s, s.mode, robot="recorded")
+    np.testing.assert_allclose(trace.step.alpha[trace.arbitrated], recorded, atol=1e-9, rtol=0)
+    assert trace.outcome_name == s.meta["outcome"]

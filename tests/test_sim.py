@@ -11,8 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dsteleop.app import sim_core as sc
-from dsteleop.app.cli import main
+from dsteleop.app.cli.main import main
+from dsteleop.app.session.trace import Trace
+from dsteleop.app.study import core as sc
 from dsteleop.arbitration import Mode
 
 
@@ -89,6 +90,33 @@ def test_results_do_not_depend_on_chunking() -> None:
         np.testing.assert_allclose(a.final, b.final, rtol=0, atol=1e-12)
         np.testing.assert_array_equal(a.success, b.success)
         np.testing.assert_allclose(a.time_s, b.time_s, rtol=0, atol=1e-12)
+
+
+def test_trace_of_one_trajectory_is_a_session_trace_matching_the_batch() -> None:
+    # One trajectory ticked alone (what the per-trajectory figures draw) is the same run as
+    # in the batch: L states give L - 1 ticks, each arbitrated, ending at the batch's final
+    # pose; its cosine distance and agreement are the batch's.
+    cfg = sc.SimConfig(trajectories=4, seed=3, modes=(Mode.S, Mode.DS))
+    res = sc.merge(cfg, [sc.run_chunk(cfg, range(4))])
+    for mode in cfg.modes:
+        tr = sc.trace(cfg, 2, mode)
+        assert isinstance(tr, Trace) and tr.mode is mode
+        L = int(res.lengths[2])
+        assert len(tr) == L - 1 and tr.arbitrated.all()
+        assert tr.dims == ("x", "y", "z", "roll", "pitch", "yaw")
+        assert tr.step.alpha.shape == (L - 1, 6) and tr.step.X_next.position.shape == (L - 1, 3)
+        trial = sc.sample_trial(cfg, 2)
+        np.testing.assert_array_equal(tr.t_s, trial.t_s[1:L])
+        final = res.modes[mode.value].final[2]
+        np.testing.assert_allclose(tr.p_robot[-1, :2], final[:2], atol=1e-12)
+        heading = sc.heading_of(tr.step.X_next.rotation[-1])
+        assert float(sc.wrap(np.array(heading - final[2]))) == pytest.approx(0.0, abs=1e-9)
+        U_h, U_o = tr.step.U_human, tr.step.U_out
+        assert np.all(np.isfinite(U_h)) and np.all(np.isfinite(U_o))
+        agree = np.einsum("td,td->t", U_h, U_o) > 0
+        moving = np.linalg.norm(U_h, axis=-1) > 1e-9
+        ratio = agree[moving].sum() / moving.sum()
+        assert ratio == pytest.approx(res.modes[mode.value].agreement[2], abs=1e-12)
 
 
 def test_trials_are_paired_and_seeded() -> None:
@@ -234,7 +262,7 @@ def test_cli_subprocess_bad_argument_no_traceback(tmp_path: Path) -> None:
     def sim(trajectories: str) -> subprocess.CompletedProcess[str]:
         args = ["sim", "--trajectories", trajectories, "--out", str(tmp_path)]
         return subprocess.run(
-            [sys.executable, "-m", "dsteleop.app.cli", *args],
+            [sys.executable, "-m", "dsteleop.app.cli.main", *args],
             capture_output=True,
             check=False,
             text=True,

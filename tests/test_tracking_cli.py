@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from dsteleop.app.cli import main
+from dsteleop.app.cli.main import main
 
 RECORD_KEYS = {
     "t",
@@ -74,14 +74,34 @@ def test_track_synthetic_source(tmp_path: Path, capsys: pytest.CaptureFixture[st
     assert np.all(np.abs(positions - [0.0, 0.0, 0.5]) < 0.12)
 
 
+def test_track_prefixed_sources(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # The --source grammar's prefixed forms reach the same sources as the bare ones.
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for k in range(3):
+        cv2.imwrite(str(frames / f"{k}.png"), np.full((48, 64, 3), 40 * k, dtype=np.uint8))
+    out = tmp_path / "images.jsonl"
+    assert main(["track", f"images:{frames}", "--out", str(out)]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["frames"] == 3 and summary["detected"] == 0  # grey: no hand
+    assert summary["source"].startswith(f"images in {frames}")
+    assert [r["detected"] for r in read_jsonl(out)] == [False] * 3
+
+
 @pytest.mark.parametrize(
     ("argv", "match"),
     [
-        (["track", "/no/such/video.mp4", "--out", "{tmp}/o.jsonl"], "source not found"),
+        (["track", "/no/such/video.mp4", "--out", "{tmp}/o.jsonl"], "video not found"),
+        (["track", "video:/no/such/clip", "--out", "{tmp}/o.jsonl"], "video not found"),
+        (["track", "images:/no/such/dir", "--out", "{tmp}/o.jsonl"], "image folder not found"),
+        (["track", "demo", "--out", "{tmp}/o.jsonl"], "not demo"),
+        (["track", "auto", "--out", "{tmp}/o.jsonl"], "not auto"),
+        (["track", "nosuchkind:x", "--out", "{tmp}/o.jsonl"], "unknown source kind"),
         (["track", "synthetic", "--out", "/no/such/dir/o.jsonl"], "folder of --out"),
         (["track", "{tmp}/empty.mp4", "--out", "{tmp}/o.jsonl"], "empty"),
         (["track", "synthetic", "--out", "{tmp}/o.jsonl", "--size", "big"], "--size"),
         (["track", "97", "--out", "{tmp}/o.jsonl"], "camera 97 does not open"),
+        (["track", "webcam:97", "--out", "{tmp}/o.jsonl"], "camera 97 does not open"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(

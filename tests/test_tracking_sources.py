@@ -31,6 +31,7 @@ from dsteleop.tracking import (
     open_source,
     scripted_trajectory,
 )
+from dsteleop.tracking.sources import SourceSpec
 
 
 def write_video(path: Path, n: int, size: tuple[int, int] = (64, 48), fps: float = 25.0) -> None:
@@ -155,8 +156,24 @@ def test_open_source_dispatch(tmp_path: Path) -> None:
     assert isinstance(open_source("0"), WebcamSource)
     assert isinstance(open_source("/dev/video3"), WebcamSource)
     assert isinstance(open_source(str(tmp_path)), ImageFolderSource)
-    with pytest.raises(DsteleopError, match="source not found"):
+    # The prefixed forms of the --source grammar, as text or parsed.
+    cam = open_source("webcam:2")
+    assert isinstance(cam, WebcamSource) and cam.device == 2
+    dev = open_source(SourceSpec("webcam", "/dev/video1"))
+    assert isinstance(dev, WebcamSource) and dev.device == "/dev/video1"
+    imgs = open_source(f"images:{tmp_path}")
+    assert isinstance(imgs, ImageFolderSource) and imgs.path == tmp_path
+    write_video(tmp_path / "v.mp4", 2)
+    for text in (f"video:{tmp_path / 'v.mp4'}", str(tmp_path / "v.mp4")):
+        vid = open_source(text)
+        assert isinstance(vid, VideoFileSource) and vid.path == tmp_path / "v.mp4"
+    with pytest.raises(DsteleopError, match="not found") as excinfo:
         open_source(str(tmp_path / "nope.mp4"))
+    assert "nope.mp4" in one_line_error(excinfo)
+    # demo and auto are the app's to resolve, not tracking sources.
+    for kind in ("demo", "auto"):
+        with pytest.raises(DsteleopError, match="not a tracking source"):
+            open_source(kind)
 
 
 def test_tracker_on_synthetic_landmarks_filters_towards_the_truth() -> None:
@@ -281,7 +298,7 @@ def test_stream_reports_a_failing_source() -> None:
 
 def test_importing_tracking_loads_neither_cv2_nor_mediapipe() -> None:
     code = (
-        "import sys, dsteleop.tracking, dsteleop.app.track_cmd;"
+        "import sys, dsteleop.tracking, dsteleop.app.cli.main, dsteleop.app.cli.track;"
         "print(sorted(m for m in ('cv2', 'mediapipe') if m in sys.modules))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

@@ -1,7 +1,9 @@
 """The browser view without a browser: what it shows, how it reads the scene, how serve runs.
 
-Snapshots come from the real loop (the built-in demo, headless on a manual clock): no
-hand-made data. The real-browser tests are in test_viewer_browser.py.
+Records come from the real loop (the built-in demo, headless on a manual clock): no
+hand-made data. The scene view is driven through a recording stand-in of viser's scene API,
+so every node it adds and every pose it sends can be checked. The real-browser tests are in
+test_viewer_browser.py.
 """
 
 from __future__ import annotations
@@ -15,65 +17,84 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 import pytest
 
-from dsteleop.app.observers import Snapshot
+from dsteleop.app.cli.compose import build
+from dsteleop.app.cli.options import LoopOptions
+from dsteleop.app.loop import LoopConfig
+from dsteleop.app.ports import HumanInput
+from dsteleop.app.session.schema import Status, TickRecord
 from dsteleop.errors import DsteleopError
+from dsteleop.robot.scene import SceneGeometry, ScenePoses
 
 if TYPE_CHECKING:
+    from dsteleop.app.cli.compose import Built
     from dsteleop.app.loop import TeleopLoop
-    from dsteleop.app.setup import Built
-    from dsteleop.app.timing import ManualClock
+    from dsteleop.app.loop.timing import ManualClock
 
 REPO = Path(__file__).resolve().parents[1]
-DSTELEOP = [sys.executable, "-m", "dsteleop.app.cli"]
+DSTELEOP = [sys.executable, "-m", "dsteleop.app.cli.main"]
 
 
 # ----------------------------------------------------------------------------- fixtures
 
 
-def _demo_loop(export_scene: bool = True) -> Built:
-    from dsteleop.app.loop import LoopConfig
-    from dsteleop.app.setup import Setup, build
-
-    return build(Setup(source="demo", loop=LoopConfig(), realtime=False, export_scene=export_scene))
+def _demo_loop(export_scene: bool = True, realtime: bool = False) -> Built:
+    return build(LoopOptions.of("demo", LoopConfig()), realtime=realtime, export_scene=export_scene)
 
 
 def _manual_clock(loop: TeleopLoop) -> ManualClock:
     """The clock of a headless loop (realtime=False), which the test advances by hand."""
-    from dsteleop.app.timing import ManualClock
+    from dsteleop.app.loop.timing import ManualClock
 
     assert isinstance(loop.clock, ManualClock)
     return loop.clock
 
 
+class DemoRun(NamedTuple):
+    """The plant's scene description and every record of a headless demo run."""
+
+    geometry: SceneGeometry
+    records: list[TickRecord]
+
+
 @pytest.fixture(scope="module")
-def snapshots() -> list[Snapshot]:
-    """Every snapshot of 150 ticks (5 s) of the headless demo."""
-    built = _demo_loop()
-    loop = built.loop
-    out: list[Snapshot] = []
+def demo_run() -> DemoRun:
+    """150 ticks (5 s) of the headless demo: its scene description and every record."""
+    loop = _demo_loop().loop
+    out: list[TickRecord] = []
     sub = loop.broadcaster.subscribe()
     try:
+        geometry = loop.plant.scene()
+        assert geometry is not None
         for _ in range(150):
-            loop.tick(loop.clock.now())
-            snap = sub.latest()
-            assert snap is not None
-            out.append(snap)
+            record = loop.tick(loop.clock.now())
+            assert sub.latest() is record  # what the viewer's subscription receives
+            out.append(record)
             _manual_clock(loop).advance(loop.config.dt_s)
     finally:
         sub.close()
         loop.close()
-    return out
+    return DemoRun(geometry, out)
 
 
-def _tracking(snapshots: list[Snapshot]) -> Snapshot:
-    return next(s for s in reversed(snapshots) if s.status == "tracking")
+@pytest.fixture(scope="module")
+def records(demo_run: DemoRun) -> list[TickRecord]:
+    return demo_run.records
+
+
+def _tracking(records: list[TickRecord]) -> TickRecord:
+    return next(r for r in reversed(records) if r.status is Status.TRACKING and r.step)
+
+
+def _alpha(record: TickRecord) -> np.ndarray[Any, np.dtype[np.float64]]:
+    """The record's alpha, zeros when the arbitration did not run."""
+    return np.zeros(len(record.dims)) if record.step is None else record.step.alpha
 
 
 def _free_port() -> int:
@@ -99,104 +120,290 @@ _ROW = re.compile(
 )
 
 
-def test_gauges_show_every_dimension_with_its_values(snapshots: list[Snapshot]) -> None:
-    from dsteleop.app.viewer_panel import gauges_html
+def test_gauges_show_every_dimension_with_its_values(records: list[TickRecord]) -> None:
+    from dsteleop.app.viewer.panel import gauges_html
 
-    snap = _tracking(snapshots)
-    rows = _ROW.findall(gauges_html(snap))
-    assert [r[0] for r in rows] == list(snap.dims)
+    rec = _tracking(records)
+    step = rec.step
+    assert step is not None
+    rows = _ROW.findall(gauges_html(rec, step))
+    assert [r[0] for r in rows] == list(rec.dims)
     assert len(rows) == 6 + 4
     got = np.array([[float(v) for v in r[1:]] for r in rows])
-    want = np.stack([snap.alpha, snap.P_human, snap.P_robot, snap.B], axis=1)
+    want = np.stack([step.alpha, step.P_human, step.P_robot, step.B], axis=1)
     np.testing.assert_allclose(got[:, :4], want, atol=5e-4)
-    np.testing.assert_allclose(got[:, 4], 100 * np.clip(snap.alpha, 0, 1), atol=0.05)
+    np.testing.assert_allclose(got[:, 4], 100 * np.clip(step.alpha, 0, 1), atol=0.05)
+    # Before the first arbitration the gauges show zeros, one row per dimension.
+    empty = _ROW.findall(gauges_html(rec, None))
+    assert [r[0] for r in empty] == list(rec.dims)
+    assert all(float(v) == 0.0 for r in empty for v in r[1:])
 
 
-def test_status_says_what_the_loop_does_and_why(snapshots: list[Snapshot]) -> None:
-    from dsteleop.app.viewer_panel import status_html
+def test_status_says_what_the_loop_does_and_why(records: list[TickRecord]) -> None:
+    from dsteleop.app.viewer.panel import status_html
 
-    snap = _tracking(snapshots)
-    lost = dataclasses.replace(snap, status="lost", reason="camera stalled")
+    rec = _tracking(records)
+    lost = dataclasses.replace(rec, status=Status.LOST, reason="camera stalled")
     text = status_html(lost)
     assert 'data-status="lost"' in text and "camera stalled" in text
-    text = status_html(snap, {"tabs": 2}, rate_hz=29.97)
+    text = status_html(rec, {"tabs": 2}, rate_hz=29.97)
     assert 'data-status="tracking"' in text
-    assert f'data-mode="{snap.mode}"' in text and f'data-phase="{snap.phase}"' in text
+    assert f'data-mode="{rec.mode.value}"' in text and f'data-phase="{rec.phase.value}"' in text
     assert 'data-rate-hz="29.97"' in text and "29.97 Hz" not in text and "30.0 Hz" in text
     assert "tabs" in text
 
 
-def test_alpha_history_keeps_a_window(snapshots: list[Snapshot]) -> None:
-    from dsteleop.app.viewer_panel import AlphaHistory
+def test_alpha_history_keeps_a_window(records: list[TickRecord]) -> None:
+    from dsteleop.app.viewer.panel import AlphaHistory
 
-    h = AlphaHistory(snapshots[0].dims, 20)
-    for s in snapshots:
-        h.push(s.t_s, s.alpha)
+    h = AlphaHistory(records[0].dims, 20)
+    for r in records:
+        h.push(r.t_s, _alpha(r))
     t, *alphas = h.data()
     assert len(t) == 20 and len(alphas) == 10
     assert t[0] == 0.0 and np.all(np.diff(t) > 0)
-    np.testing.assert_allclose([a[-1] for a in alphas], snapshots[-1].alpha)
+    np.testing.assert_allclose([a[-1] for a in alphas], _alpha(records[-1]))
 
 
-def test_camera_image_draws_the_tracked_landmarks(snapshots: list[Snapshot]) -> None:
-    from dsteleop.app.viewer_panel import camera_image
+def _detected(records: list[TickRecord]) -> HumanInput:
+    hand = next(
+        r.hand
+        for r in reversed(records)
+        if r.hand is not None and r.hand.sample is not None and r.hand.sample.detected
+    )
+    assert hand is not None
+    return hand
 
-    snap = next(s for s in reversed(snapshots) if s.hand is not None and s.hand.sample.detected)
-    img = camera_image(snap.hand, width_px=160)
+
+def test_camera_image_draws_the_tracked_landmarks(records: list[TickRecord]) -> None:
+    from dsteleop.app.viewer.panel import camera_image
+
+    hand = _detected(records)
+    assert hand.sample is not None and hand.sample.image is None  # the demo has no pixels
+    img = camera_image(hand, width_px=160)
     assert img is not None and img.shape == (120, 160, 3) and img.dtype == np.uint8
-    assert (img != 60).any(axis=2).sum() > 50  # skeleton drawn on the grey canvas
+    drawn = (img != 60).any(axis=2)
+    assert drawn.sum() > 50  # skeleton drawn on the grey canvas
+    assert (~drawn).mean() > 0.5  # ... which is the grey 60-level canvas elsewhere
+    undetected = dataclasses.replace(hand.sample, detected=False)
+    canvas = camera_image(dataclasses.replace(hand, sample=undetected), width_px=160)
+    assert canvas is not None and (canvas == 60).all()  # no hand: the canvas only
     assert camera_image(None) is None
+    assert camera_image(dataclasses.replace(hand, sample=None)) is None
+
+
+def _test_frame(h: int, w: int) -> np.ndarray[Any, np.dtype[np.uint8]]:
+    """A BGR frame: blue left half, red right half, a vertical green ramp over both."""
+    frame = np.zeros((h, w, 3), dtype=np.uint8)
+    frame[:, : w // 2, 0] = 255
+    frame[:, w // 2 :, 2] = 255
+    frame[:, :, 1] = np.linspace(0, 200, h, dtype=np.uint8)[:, None]
+    return frame
+
+
+def test_camera_image_shows_the_frames_pixels(records: list[TickRecord]) -> None:
+    import cv2
+
+    from dsteleop.app.viewer.panel import camera_image
+
+    hand = _detected(records)
+    assert hand.sample is not None
+    frame = _test_frame(360, 640)  # 16:9, unlike the sample's 640x480: the frame's own size
+    want = cv2.resize(frame, (160, 90), interpolation=cv2.INTER_AREA)[:, :, ::-1]
+    # Without a hand the image is the frame itself, downscaled, in RGB order.
+    bare = dataclasses.replace(hand.sample, image=frame, detected=False)
+    img = camera_image(dataclasses.replace(hand, sample=bare), width_px=160)
+    assert img is not None and img.shape == (90, 160, 3) and img.dtype == np.uint8
+    np.testing.assert_array_equal(img, want)
+    assert (img[:, :70, 2] == 255).all() and (img[:, :70, 0] == 0).all()  # blue on the left
+    assert (img[:, 90:, 0] == 255).all() and (img[:, 90:, 2] == 0).all()  # red on the right
+    assert img.std() > 50 and not (img == 60).all()
+    # With a hand, the landmarks are drawn over the frame's pixels.
+    seen = dataclasses.replace(hand.sample, image=frame)
+    img = camera_image(dataclasses.replace(hand, sample=seen), width_px=160)
+    assert img is not None and img.shape == want.shape
+    changed = (img != want).any(axis=2)
+    assert changed.sum() > 50 and (~changed).mean() > 0.5
+    assert frame[0, 0, 0] == 255  # the frame itself is not drawn on
 
 
 # ----------------------------------------------------------------------------- scene
 
 
-def test_robot_scene_description_is_read_without_robot_types() -> None:
-    from dsteleop.app.plant import KitchenPlant
-    from dsteleop.app.viewer_scene import frame_order, frame_poses, visual_shapes
+class _Node:
+    """A node of the stand-in scene: what it was added with, and what was set since."""
+
+    def __init__(self, kind: str, name: str, args: tuple[Any, ...], kw: dict[str, Any]) -> None:
+        self.kind = kind
+        self.name = name
+        self.args = args
+        self.kw = kw
+        self.visible = kw.get("visible", True)
+        self.position = kw.get("position")
+        self.wxyz = kw.get("wxyz")
+        self.sets = 0
+
+    def __setattr__(self, key: str, value: Any) -> None:
+        if key in ("position", "wxyz") and "sets" in self.__dict__:
+            self.__dict__["sets"] += 1
+        super().__setattr__(key, value)
+
+
+class _Scene:
+    """A stand-in for `viser.SceneApi` that records every node added (by name)."""
+
+    def __init__(self) -> None:
+        self.nodes: dict[str, _Node] = {}
+
+    def __getattr__(self, method: str) -> Callable[..., Any]:
+        if not method.startswith("add_"):
+            if method.startswith("set_"):
+                return lambda *args, **kw: None
+            raise AttributeError(method)
+
+        def add(name: str, *args: Any, **kw: Any) -> _Node:
+            assert name not in self.nodes, f"{name} added twice"
+            node = self.nodes[name] = _Node(method, name, args, kw)
+            return node
+
+        return add
+
+
+_ADD = {"box": "add_box", "sphere": "add_icosphere", "cylinder": "add_cylinder"}
+_ADD |= {"capsule": "add_cylinder", "mesh": "add_mesh_simple"}
+
+
+def _rgb(rgba: tuple[float, ...]) -> tuple[int, int, int]:
+    return (round(255 * rgba[0]), round(255 * rgba[1]), round(255 * rgba[2]))
+
+
+def test_scene_view_draws_every_visual_of_the_kitchen() -> None:
+    from dsteleop.app.plants.kitchen import KitchenPlant
+    from dsteleop.app.viewer.scene import SceneView
 
     plant = KitchenPlant(export_scene=True)
     try:
         plant.reset()
-        geo = plant.scene_description()
+        geo = plant.scene()
         poses = plant.env.poses()
     finally:
         plant.close()
-    shapes = visual_shapes(geo)
-    assert len(shapes) == len(geo.visuals)
-    frames, static = frame_order(geo)
-    assert frames == geo.frames and static == geo.static
-    assert {s.frame for s in shapes} <= set(frames)
-    meshes = [s for s in shapes if s.kind == "mesh"]
-    assert meshes and all(Path(str(s.mesh_path)).is_file() for s in meshes)
-    boxes = [s for s in shapes if s.kind == "box"]
-    assert boxes and all(len(s.size_m) == 3 for s in boxes)
-    fp = frame_poses(poses, frames)
-    assert fp is not None and fp.names == frames
-    assert fp.positions_m.shape == (len(frames), 3) and fp.wxyz.shape == (len(frames), 4)
-    np.testing.assert_allclose(np.linalg.norm(fp.wxyz, axis=1), 1.0, atol=1e-9)
+    frames = geo.frames
+    assert len(geo.static) == len(frames) and {v.frame for v in geo.visuals} <= set(frames)
+    meshes = [v for v in geo.visuals if v.kind == "mesh"]
+    assert meshes and all(Path(str(v.mesh_path)).is_file() for v in meshes)
+    boxes = [v for v in geo.visuals if v.kind == "box"]
+    assert boxes and all(len(v.size_m) == 3 for v in boxes)
+    assert poses.positions_m.shape == (len(frames), 3) and poses.wxyz.shape == (len(frames), 4)
+    np.testing.assert_allclose(np.linalg.norm(poses.wxyz, axis=1), 1.0, atol=1e-9)
+
+    scene = _Scene()
+    view = SceneView(scene, geo)
+    # One node per frame that has visuals, and under it every visual (but the floor plane:
+    # the view's grid is the floor), with its shape, colour and offset in the frame.
+    drawn = [(k, v) for k, v in enumerate(geo.visuals) if v.kind != "plane"]
+    assert len(drawn) == len(geo.visuals) - 1
+    assert set(view.frames) == {v.frame for v in geo.visuals}
+    for k, v in drawn:
+        i = frames.index(v.frame)
+        assert view.frames[v.frame] is scene.nodes[f"/w/{i}"]
+        node = scene.nodes[f"/w/{i}/{k}"]
+        assert node.kind == _ADD[v.kind], (k, v)
+        assert node.kw["color"] == _rgb(v.rgba)
+        np.testing.assert_allclose(node.kw["position"], v.p_frame_visual_m)
+        np.testing.assert_allclose(node.kw["wxyz"], v.wxyz_frame_visual)
+        if v.kind == "box":
+            assert tuple(node.kw["dimensions"]) == v.size_m
+        elif v.kind == "sphere":
+            assert node.kw["radius"] == v.size_m[0]
+        elif v.kind == "mesh":
+            assert len(node.kw["vertices"]) > 0 and len(node.kw["faces"]) > 0
+    shapes = [n for n in scene.nodes.values() if n.name.startswith("/w/") and n.kind != "add_frame"]
+    assert len(shapes) == len(drawn)
+    assert view.robot_hand is None  # the real hand is drawn, not a proxy
 
 
-def test_only_moved_frames_are_sent_and_static_ones_once(snapshots: list[Snapshot]) -> None:
-    from dsteleop.app.viewer_scene import POSITION_DEADBAND_M, ChangedRows, FramePoses
+def test_scene_view_moves_frames_from_the_records_poses(demo_run: DemoRun) -> None:
+    from dsteleop.app.viewer.scene import POSITION_DEADBAND_M, QUATERNION_DEADBAND, SceneView
 
-    scene = snapshots[-1].scene
+    geo, records = demo_run
+    scene = _Scene()
+    view = SceneView(scene, geo)
+    nodes = {f: view.frames[f] for f in geo.frames if f in view.frames}
+    first = next(r.plant.scene for r in records if r.plant.scene is not None)
+    for r in records:
+        view.update(r, r.X_human)
+        poses = r.plant.scene
+        assert poses is not None
+        for i, f in enumerate(geo.frames):
+            if f not in nodes:
+                continue
+            static = geo.static[i]
+            want = first if static else poses  # static frames are sent once
+            np.testing.assert_allclose(
+                nodes[f].position, want.positions_m[i], atol=POSITION_DEADBAND_M
+            )
+            np.testing.assert_allclose(nodes[f].wxyz, want.wxyz[i], atol=QUATERNION_DEADBAND)
+    for i, f in enumerate(geo.frames):
+        if f in nodes and geo.static[i]:
+            assert nodes[f].sets == 2, f  # position and orientation, once
+    palm = nodes["robot/palm"]
+    assert palm.sets > 2 * 30  # the palm moved on many ticks
+    np.testing.assert_allclose(palm.position, records[-1].X_current.position, atol=0.02)
+    # The ghost follows the operator's hand; the trail the robot's.
+    last = records[-1]
+    assert last.X_human is not None
+    np.testing.assert_allclose(view.ghost.root.position, last.X_human.position, atol=1e-3)
+
+
+def test_scene_view_ignores_poses_that_do_not_match_its_frames(demo_run: DemoRun) -> None:
+    from dsteleop.app.viewer.scene import SceneView
+
+    geo, records = demo_run
+    scene = _Scene()
+    view = SceneView(scene, geo)
+    rec = records[-1]
+    poses = rec.plant.scene
+    assert poses is not None
+    short = ScenePoses(poses.t_s, poses.positions_m[:-1], poses.wxyz[:-1])
+    view.update(dataclasses.replace(rec, plant=dataclasses.replace(rec.plant, scene=short)), None)
+    assert all(n.sets == 0 for n in view.frames.values())  # not moved, and no error
+
+
+def test_without_a_description_the_robot_hand_is_a_proxy(records: list[TickRecord]) -> None:
+    from dsteleop.app.viewer.scene import SceneView
+
+    view = SceneView(_Scene(), None)
+    assert not view.frames and view.robot_hand is not None
+    for r in records:
+        view.update(r, r.X_human)
+    np.testing.assert_allclose(
+        view.robot_hand.root.position, records[-1].X_current.position, atol=1e-3
+    )
+
+
+def test_only_moved_frames_are_sent_and_static_ones_once(records: list[TickRecord]) -> None:
+    from dsteleop.app.viewer.scene import POSITION_DEADBAND_M, ChangedRows
+
+    scene = records[-1].plant.scene
+    assert scene is not None
     names = tuple(f"f{i}" for i in range(len(scene.positions_m)))
     P, Q = np.array(scene.positions_m), np.array(scene.wxyz)
     rows = ChangedRows(static={"f0"})
-    assert rows.rows(FramePoses(names, P, Q)) == list(range(len(names)))
-    assert rows.rows(FramePoses(names, P, Q)) == []
+    assert rows.rows(names, ScenePoses(0.0, P, Q)) == list(range(len(names)))
+    assert rows.rows(names, ScenePoses(0.0, P, Q)) == []
     P2 = P.copy()
     P2[3, 0] += 10 * POSITION_DEADBAND_M
     P2[0, 0] += 1.0  # a "static" frame never moves again in the view
     P2[4, 1] += 0.2 * POSITION_DEADBAND_M  # below the deadband
-    assert rows.rows(FramePoses(names, P2, Q)) == [3]
+    assert rows.rows(names, ScenePoses(0.0, P2, Q)) == [3]
 
 
-def test_robot_poses_in_snapshots_move_the_arm(snapshots: list[Snapshot]) -> None:
-    first = next(s for s in snapshots if s.scene is not None)
-    last = snapshots[-1]
-    moved = np.abs(last.scene.positions_m - first.scene.positions_m).max(axis=1)
+def test_robot_poses_in_records_move_the_arm(records: list[TickRecord]) -> None:
+    first = next(r.plant.scene for r in records if r.plant.scene is not None)
+    last = records[-1].plant.scene
+    assert last is not None
+    moved = np.abs(last.positions_m - first.positions_m).max(axis=1)
     assert (moved > 1e-3).sum() >= 3  # arm links follow the palm
 
 
@@ -204,13 +411,11 @@ def test_robot_poses_in_snapshots_move_the_arm(snapshots: list[Snapshot]) -> Non
 
 
 def test_viewer_follows_a_live_loop_and_never_posts_on_its_own() -> None:
-    from dsteleop.app.viewer import Viewer, ViewerConfig
+    from dsteleop.app.viewer.server import Viewer, ViewerConfig
 
     built = _demo_loop()
     loop = built.loop
-    viewer = Viewer(
-        loop.broadcaster, loop.controls, loop.plant.scene_description(), ViewerConfig(port=0)
-    )
+    viewer = Viewer(loop.broadcaster, loop.controls, loop.plant.scene(), ViewerConfig(port=0))
     try:
         viewer.start()
         assert viewer.url == f"http://127.0.0.1:{viewer.port}/" and viewer.port > 0
@@ -233,9 +438,9 @@ def test_viewer_follows_a_live_loop_and_never_posts_on_its_own() -> None:
 
 
 def test_port_in_use_is_one_clear_error(busy_port: int) -> None:
-    from dsteleop.app.controls import Controls
-    from dsteleop.app.observers import Broadcaster
-    from dsteleop.app.viewer import Viewer, ViewerConfig, check_port_free
+    from dsteleop.app.loop.broadcast import Broadcaster
+    from dsteleop.app.loop.controls import Controls
+    from dsteleop.app.viewer.server import Viewer, ViewerConfig, check_port_free
 
     with pytest.raises(DsteleopError, match=f"port {busy_port} is already in use"):
         check_port_free("127.0.0.1", busy_port)
@@ -247,7 +452,8 @@ def test_port_in_use_is_one_clear_error(busy_port: int) -> None:
 
 def test_viewer_imports_no_pybullet() -> None:
     code = (
-        "import sys, dsteleop.app.viewer, dsteleop.app.viewer_scene, dsteleop.app.viewer_panel;"
+        "import sys, dsteleop.app.viewer.server, dsteleop.app.viewer.scene, "
+        "dsteleop.app.viewer.panel;"
         "sys.exit('pybullet' in sys.modules)"
     )
     assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0
@@ -294,7 +500,7 @@ def test_serve_rejects_bad_arguments() -> None:
 @pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_serve_stops_cleanly_with_a_complete_recording(tmp_path: Path, sig: int) -> None:
-    from dsteleop.app.recording import read_session
+    from dsteleop.app.session.reader import read_session
 
     port = _free_port()
     proc = subprocess.Popen(
@@ -326,7 +532,7 @@ def test_serve_stops_cleanly_with_a_complete_recording(tmp_path: Path, sig: int)
     assert summary["timing"]["ticks"] > 30
     session = read_session(Path(summary["recording"]))
     assert session.folder.parent == tmp_path
-    assert session.complete and len(session.ticks) > 30
+    assert session.complete and len(session.records) > 30
     assert "Traceback" not in err
 
 
@@ -354,15 +560,10 @@ def _stalled_client(port: int) -> socket.socket:
 
 @pytest.mark.slow
 def test_a_stalled_tab_never_slows_the_loop() -> None:
-    from dsteleop.app.loop import LoopConfig
-    from dsteleop.app.setup import Setup, build
-    from dsteleop.app.viewer import Viewer, ViewerConfig
+    from dsteleop.app.viewer.server import Viewer, ViewerConfig
 
-    built = build(Setup(source="demo", loop=LoopConfig(), realtime=True, export_scene=True))
-    loop = built.loop
-    viewer = Viewer(
-        loop.broadcaster, loop.controls, loop.plant.scene_description(), ViewerConfig(port=0)
-    )
+    loop = _demo_loop(realtime=True).loop
+    viewer = Viewer(loop.broadcaster, loop.controls, loop.plant.scene(), ViewerConfig(port=0))
     viewer.start()
     stalled = [_stalled_client(viewer.port) for _ in range(2)]
     sub = loop.broadcaster.subscribe()
@@ -382,8 +583,8 @@ def test_a_stalled_tab_never_slows_the_loop() -> None:
             s.close()
         viewer.close()
         loop.close()
-    assert first is not None and last is not None and last.tick > first.tick
-    rate = (last.tick - first.tick) / (last.t_s - first.t_s)
+    assert first is not None and last is not None and last.k > first.k
+    rate = (last.k - first.k) / (last.t_s - first.t_s)
     # Held, not blocked: a loop waiting on a stalled client would fall to a few Hz. The margin
     # (80 % of 30 Hz) absorbs a shared 2-core machine; the 30 Hz / p99 jitter targets are
     # measured by `dsteleop bench --only viewer`, not here.

@@ -1,8 +1,9 @@
-"""The browser view in a real browser: `dsteleop serve --source demo` and headless Chromium.
+"""The browser view in a real browser: `dsteleop serve` and headless Chromium.
 
 Everything is checked from the page itself (the DOM Viser renders, and the WebGL canvas):
 the gauges are present and their values change, the scene is drawn, a mode chosen in the
-page reaches the loop, and two tabs see the same session while the loop keeps its rate.
+page reaches the loop, two tabs see the same session while the loop keeps its rate, and with
+a video source the camera panel shows the video's pixels (not the grey canvas).
 Uses Debian's system Chromium (`/usr/bin/chromium`, installed by .ci/run); without it the
 tests skip with the reason. WebGL runs in software there, so waits are generous but bounded.
 A screenshot is saved under test-artifacts/; `DSTELEOP_UPDATE_SCREENSHOT=1` also copies it to
@@ -11,6 +12,8 @@ docs/screenshot.png (the README's).
 
 from __future__ import annotations
 
+import base64
+import contextlib
 import os
 import shutil
 import signal
@@ -21,7 +24,7 @@ import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pytest
@@ -58,21 +61,12 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-@pytest.fixture(scope="module")
-def served() -> Iterator[str]:
-    """`dsteleop serve --source demo` on a free local port; its URL. Stopped with Ctrl-C."""
+@contextlib.contextmanager
+def _serve(*args: str) -> Iterator[str]:
+    """`dsteleop serve ARGS --port <free>` until the block ends (then Ctrl-C); its URL."""
     port = _free_port()
     proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "dsteleop.app.cli",
-            "serve",
-            "--source",
-            "demo",
-            "--port",
-            str(port),
-        ],
+        [sys.executable, "-m", "dsteleop.app.cli.main", "serve", *args, "--port", str(port)],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -98,6 +92,13 @@ def served() -> Iterator[str]:
             proc.communicate()
             raise
     assert proc.returncode == 0, err[-2000:]
+
+
+@pytest.fixture(scope="module")
+def served() -> Iterator[str]:
+    """`dsteleop serve --source demo` on a free local port; its URL. Stopped with Ctrl-C."""
+    with _serve("--source", "demo") as url:
+        yield url
 
 
 @pytest.fixture(scope="module")
@@ -237,3 +238,111 @@ def test_two_tabs_see_one_session_and_the_loop_rate_holds(served: str, browser: 
     finally:
         for p in pages:
             p.close()
+
+
+# ----------------------------------------------------------------------------- camera
+
+VIDEO = "videos/portrait_fingers_open_close.mp4"  # 540x960 portrait, a hand opening/closing
+CANVAS_LEVEL = 60  # the grey canvas of sources without pixels (viewer.panel.camera_image)
+# A grey canvas with a drawn hand has a pixel std-dev of about 20 (the demo's: 20.7 at most);
+# the frames of this video about 60-66. Twice the canvas's is "clearly" a camera picture.
+MIN_PICTURE_STD = 40.0
+
+_IMAGE_BYTES_JS = """async e => {
+    try {
+        const r = await fetch(e.src);
+        const b = new Uint8Array(await r.arrayBuffer());
+        let s = "";
+        for (let i = 0; i < b.length; i += 8192) {
+            s += String.fromCharCode.apply(null, b.subarray(i, i + 8192));
+        }
+        return btoa(s);
+    } catch (err) {
+        return null;  // the image was replaced (its blob revoked) meanwhile: read again
+    }
+}"""
+
+
+def _camera_img(page: Page) -> Any:
+    """The <img> viser renders inside the "Camera" folder (the title's parent panel)."""
+    title = page.get_by_text("Camera", exact=True)
+    return title.locator("xpath=..").locator("img")
+
+
+def _decoded(data: bytes) -> np.ndarray[Any, np.dtype[np.uint8]]:
+    import cv2
+
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    assert img is not None, "not an image"
+    return np.asarray(img, dtype=np.uint8)
+
+
+def _sent_image(page: Page) -> np.ndarray[Any, np.dtype[np.uint8]] | None:
+    """The camera image as sent (the JPEG behind the <img>), BGR, or None if not shown yet."""
+    img = _camera_img(page)
+    if not img.count():
+        return None
+    data = img.first.evaluate(_IMAGE_BYTES_JS)
+    return None if data is None else _decoded(base64.b64decode(data))
+
+
+def _video_frames(path: Path, width: int, height: int) -> np.ndarray[Any, np.dtype[np.uint8]]:
+    """Every frame of the video, downscaled as the view does, BGR."""
+    import cv2
+
+    cap = cv2.VideoCapture(str(path))
+    frames = []
+    try:
+        while True:
+            ok, frame = cap.read()
+            if not ok:
+                break
+            frames.append(cv2.resize(frame, (width, height), interpolation=cv2.INTER_AREA))
+    finally:
+        cap.release()
+    assert frames, f"no frames in {path}"
+    return np.stack(frames)
+
+
+def _grey_fraction(img: np.ndarray[Any, np.dtype[np.uint8]]) -> float:
+    near = np.abs(img.astype(np.int16) - CANVAS_LEVEL) <= 3
+    return float(near.all(axis=-1).mean())
+
+
+def test_camera_panel_shows_the_videos_pixels(shared_data: Path, browser: Browser) -> None:
+    video = shared_data / VIDEO
+    if not video.is_file():
+        pytest.skip(f"test video not found: {video}")
+    with _serve("--source", f"video:{video}") as url:
+        page = _open(browser, url)
+        try:
+            _camera_img(page).first.wait_for(state="attached")
+            shown: list[np.ndarray[Any, np.dtype[np.uint8]]] = []
+
+            def read() -> bool:
+                img = _sent_image(page)
+                if img is not None:
+                    shown.append(img)
+                return img is not None
+
+            _wait(read, 60.0, "the camera image", page)
+            img = shown[-1]
+            natural = _camera_img(page).first.evaluate("e => [e.naturalWidth, e.naturalHeight]")
+            png = _camera_img(page).first.screenshot()
+        finally:
+            page.close()
+    # The frame downscaled to the panel's width, with the video's portrait aspect.
+    assert img.shape == (569, 320, 3) and list(natural) == [320, 569], (img.shape, natural)
+    # A picture, not the uniform grey canvas (std 0) nor the canvas with a hand drawn on it.
+    assert img.std() > MIN_PICTURE_STD, img.std()
+    assert _grey_fraction(img) < 0.05
+    # ... and this video's picture: close to one of its frames (JPEG, the drawn landmarks),
+    # and far closer than the grey canvas is to any frame.
+    frames = _video_frames(video, img.shape[1], img.shape[0])
+    diff = np.abs(frames.astype(np.int16) - img.astype(np.int16)).mean(axis=(1, 2, 3))
+    grey = np.abs(frames.astype(np.int16) - CANVAS_LEVEL).mean(axis=(1, 2, 3))
+    assert diff.min() < 12.0, diff.min()
+    assert diff.min() < 0.25 * grey.min(), (diff.min(), grey.min())
+    # What the page draws is the picture too (an element screenshot of the <img>).
+    drawn = _decoded(png)
+    assert drawn.std() > MIN_PICTURE_STD and _grey_fraction(drawn) < 0.05, drawn.std()

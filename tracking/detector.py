@@ -18,7 +18,7 @@ from typing import Any, Literal, Protocol
 
 import numpy as np
 
-from dsteleop.errors import DsteleopError
+from dsteleop.errors import InputError
 from dsteleop.tracking.types import Detection, Handedness, Image, other_hand
 
 log = logging.getLogger(__name__)
@@ -135,7 +135,7 @@ class TaskHandDetector:
         BaseOptions = importlib.import_module("mediapipe.tasks.python").BaseOptions
         path = config.task_model_path
         if path is None or not path.is_file():
-            raise DsteleopError(f"hand landmarker model not found: {path}")
+            raise InputError(f"hand landmarker model not found: {path}")
         self._cv2 = cv2
         self._mp = mp
         self._config = config
@@ -151,7 +151,7 @@ class TaskHandDetector:
         try:
             self._landmarker = vision.HandLandmarker.create_from_options(options)
         except (RuntimeError, ValueError) as exc:
-            raise DsteleopError(f"cannot load hand landmarker model {path}: {exc}") from exc
+            raise InputError(f"cannot load hand landmarker model {path}: {exc}") from exc
 
     def detect(self, image_bgr: Image, t_s: float) -> list[Detection]:
         """All hands in the image; `t_s` must increase between calls in video mode."""

@@ -370,7 +370,8 @@ class TrackingStream:
                         return
                     frame, self._frame = self._frame, None
                     self._cond.notify_all()
-                sample = self.tracker.process(frame)
+                # The newest sample carries its frame's pixels (for a live view's camera panel).
+                sample = dataclasses.replace(self.tracker.process(frame), image=frame.image)
                 with self._cond:
                     self._sample = sample
                     self.tracked += 1

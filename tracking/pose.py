@@ -112,7 +112,7 @@ class PoseConfig:
         theta_open_rad: per finger (thumb..little), summed joint flexion of a straight
             finger [rad]. A straight finger is never at exactly 0: the wrist -> MCP -> PIP
             angle includes the fan of the metacarpals. Typical values of MediaPipe 0.10.21's
-            world landmarks on the photos in ../shared/data/hand_images ("four": straight
+            world landmarks on the test photos of hands (docs/test-data.md) ("four": straight
             fingers, thumb folded).
         theta_closed_rad: per finger, summed flexion of a fully folded finger [rad]
             (fists in the "none" and "rock" photos reach 3.3-4.2 rad on the fingers and

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from dsteleop.errors import DsteleopError
+from dsteleop.errors import InputError
 from dsteleop.tracking.landmarks import CONNECTIONS, FINGER_NAMES
 from dsteleop.tracking.pose import CameraIntrinsics
 from dsteleop.tracking.types import Frame, HandSample, Image
@@ -75,7 +75,7 @@ class PreviewWriter:
         self.fps = fps
         self._writer: Any = None
         if not self.path.parent.is_dir():
-            raise DsteleopError(f"folder of the preview does not exist: {self.path.parent}")
+            raise InputError(f"folder of the preview does not exist: {self.path.parent}")
 
     def write(self, image: Image) -> None:
         """Append one BGR image (the first fixes the video size)."""
@@ -86,7 +86,7 @@ class PreviewWriter:
                 str(self.path), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, (w, h)
             )
             if not self._writer.isOpened():
-                raise DsteleopError(f"cannot write preview video: {self.path}")
+                raise InputError(f"cannot write preview video: {self.path}")
         self._writer.write(image)
 
     def close(self) -> None:

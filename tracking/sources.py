@@ -6,7 +6,7 @@ frames at its own pace and stamps them with `time.monotonic()`; the others are r
 as the consumer asks and stamp frames with their own clock (frame index / fps), so replay is
 deterministic. `TrackingStream` (pipeline.py) runs any source in a capture thread.
 
-Every bad input becomes a one-line `DsteleopError`: a missing, unreadable, corrupt or empty
+Every bad input becomes a one-line `InputError`: a missing, unreadable, corrupt or empty
 file, an empty folder, a camera that does not open (with the cameras that do).
 """
 
@@ -18,12 +18,13 @@ import logging
 import math
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Literal, Protocol
 
 import numpy as np
 
-from dsteleop.errors import DsteleopError
+from dsteleop.errors import ConfigError, InputError
 from dsteleop.tracking.pose import CameraIntrinsics
 from dsteleop.tracking.synthetic import LandmarkNoise, SyntheticSource, scripted_trajectory
 from dsteleop.tracking.types import Frame, Image
@@ -105,22 +106,22 @@ class VideoFileSource:
         return f"video {self.path}"
 
     def open(self) -> None:
-        """Open and check the file (raises DsteleopError with one line on bad input)."""
+        """Open and check the file (raises InputError with one line on bad input)."""
         cv2 = _cv2()
         if not self.path.exists():
-            raise DsteleopError(f"video not found: {self.path}")
+            raise InputError(f"video not found: {self.path}")
         if not self.path.is_file():
-            raise DsteleopError(f"not a file: {self.path}")
+            raise InputError(f"not a file: {self.path}")
         if self.path.stat().st_size == 0:
-            raise DsteleopError(f"video is empty (0 bytes): {self.path}")
+            raise InputError(f"video is empty (0 bytes): {self.path}")
         cap = cv2.VideoCapture(str(self.path))
         if not cap.isOpened():
             cap.release()
-            raise DsteleopError(f"cannot read video (corrupt or unsupported format): {self.path}")
+            raise InputError(f"cannot read video (corrupt or unsupported format): {self.path}")
         ok, first = cap.read()
         if not ok or first is None:
             cap.release()
-            raise DsteleopError(f"video has no readable frames: {self.path}")
+            raise InputError(f"video has no readable frames: {self.path}")
         fps = float(cap.get(cv2.CAP_PROP_FPS))
         self.fps = fps if math.isfinite(fps) and 1.0 <= fps <= 1000.0 else 30.0
         self.frame_count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
@@ -225,7 +226,7 @@ class WebcamSource:
         return f"camera {self.device}"
 
     def open(self) -> None:
-        """Open the camera (DsteleopError listing the cameras that open, if it does not)."""
+        """Open the camera (InputError listing the cameras that open, if it does not)."""
         cv2 = _cv2()
         level = cv2.getLogLevel()
         cv2.setLogLevel(0)  # a camera that does not open gets our one line, not OpenCV's
@@ -237,9 +238,7 @@ class WebcamSource:
             cap.release()
             found = available_cameras()
             listing = ", ".join(found) if found else "none"
-            raise DsteleopError(
-                f"camera {self.device} does not open (cameras that open: {listing})"
-            )
+            raise InputError(f"camera {self.device} does not open (cameras that open: {listing})")
         if self.size is not None:
             cap.set(cv2.CAP_PROP_FRAME_WIDTH, self.size[0])
             cap.set(cv2.CAP_PROP_FRAME_HEIGHT, self.size[1])
@@ -300,21 +299,19 @@ class ImageFolderSource:
         return f"images in {self.path} ({len(self.files)})"
 
     def open(self) -> None:
-        """List the images (DsteleopError if the folder is missing or holds none)."""
+        """List the images (InputError if the folder is missing or holds none)."""
         if not self.path.is_dir():
-            raise DsteleopError(f"image folder not found: {self.path}")
+            raise InputError(f"image folder not found: {self.path}")
         self.files = sorted(
             p for p in self.path.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES
         )
         if not self.files:
-            raise DsteleopError(
-                f"no images in {self.path} (looked for {', '.join(IMAGE_SUFFIXES)})"
-            )
+            raise InputError(f"no images in {self.path} (looked for {', '.join(IMAGE_SUFFIXES)})")
         self._seq = 0
         self._t0 = time.monotonic()
 
     def read(self) -> Frame | None:
-        """The next image, or None after the last (DsteleopError on an unreadable file)."""
+        """The next image, or None after the last (InputError on an unreadable file)."""
         if self._seq >= len(self.files):
             return None
         path = self.files[self._seq]
@@ -324,7 +321,7 @@ class ImageFolderSource:
                 time.sleep(delay)
         image = _cv2().imread(str(path), _cv2().IMREAD_COLOR)
         if image is None or image.size == 0:
-            raise DsteleopError(f"cannot read image (corrupt or unsupported): {path}")
+            raise InputError(f"cannot read image (corrupt or unsupported): {path}")
         image = _resize(np.ascontiguousarray(image), self.size)
         t = time.monotonic() if self.realtime else self._seq / self.fps
         frame = Frame(self._seq, t, image.shape[1], image.shape[0], image=image)
@@ -335,25 +332,84 @@ class ImageFolderSource:
         return None
 
 
+SourceKind = Literal["demo", "auto", "webcam", "video", "images", "synthetic"]
+SOURCE_GRAMMAR = (
+    "demo, auto, webcam:N (or webcam:/dev/videoN, or N), video:PATH (or a video file), "
+    "images:DIR (or a folder of images), or synthetic"
+)
+
+
+@dataclass(frozen=True)
+class SourceSpec:
+    """A parsed `--source` (the one grammar of every command that reads a hand).
+
+    Attributes:
+        kind: `demo` (the app's built-in demo operator), `auto` (a webcam if one opens,
+            else the demo), `webcam`, `video`, `images` (a folder of stills), `synthetic`
+            (the scripted synthetic hand).
+        target: the camera index or device path, or the file or folder path; "" otherwise.
+    """
+
+    kind: SourceKind
+    target: str = ""
+
+    def __str__(self) -> str:
+        return f"{self.kind}:{self.target}" if self.target else self.kind
+
+
+def parse_source(text: str) -> SourceSpec:
+    """Parse a `--source` value (`SOURCE_GRAMMAR`); a bare path or index is told by its type.
+
+    Raises:
+        ConfigError: an unknown kind, or a kind without its target.
+    """
+    text = str(text).strip()
+    if not text:
+        raise ConfigError(f"--source is empty ({SOURCE_GRAMMAR})")
+    if text in ("demo", "auto", "synthetic"):
+        return SourceSpec(text)  # type: ignore[arg-type]
+    if text in ("webcam", "video", "images"):
+        raise ConfigError(f"--source {text}: needs a target, e.g. {text}:... ({SOURCE_GRAMMAR})")
+    kind, sep, target = text.partition(":")
+    if sep and kind in ("webcam", "video", "images"):
+        if not target:
+            raise ConfigError(f"--source {kind}: needs a target ({SOURCE_GRAMMAR})")
+        return SourceSpec(kind, target)  # type: ignore[arg-type]
+    if sep and kind in ("demo", "auto", "synthetic"):
+        raise ConfigError(f"--source {kind} takes no target, got {text!r}")
+    if sep and len(kind) > 1 and not Path(text).exists():
+        raise ConfigError(f"unknown source kind {kind!r} in {text!r} ({SOURCE_GRAMMAR})")
+    if text.isdigit() or text.startswith("/dev/video"):
+        return SourceSpec("webcam", text)
+    if Path(text).is_dir():
+        return SourceSpec("images", text)
+    return SourceSpec("video", text)  # a file; whether it exists is `open_source`'s to say
+
+
 def open_source(
-    spec: str,
+    spec: SourceSpec | str,
     *,
     realtime: bool = False,
     size: tuple[int, int] | None = None,
     fps: float = 30.0,
     duration_s: float | None = None,
 ) -> FrameSource:
-    """Build (not open) the source a command-line SOURCE names.
+    """Build (not open) the frame source of a `--source` (any kind but demo and auto, which
+    the app resolves: the demo operator is not a tracking source).
 
     Args:
-        spec: "synthetic" (the scripted synthetic operator), a camera index ("0") or device
-            path ("/dev/video0"), a folder of images, or a video file.
+        spec: the source, parsed or as text.
         realtime: pace files at their fps (cameras are always live).
         size: resize frames to (width, height) [px]; for cameras, the requested size.
         fps: frame rate of image folders and the synthetic operator [Hz].
         duration_s: length of the synthetic operator's run [s] (default 10 s).
+
+    Raises:
+        InputError: a file or folder that does not exist.
+        ConfigError: demo or auto, which are not tracking sources.
     """
-    if spec == "synthetic":
+    spec = parse_source(spec) if isinstance(spec, str) else spec
+    if spec.kind == "synthetic":
         w, h = size or (640, 480)
         return SyntheticSource(
             scripted_trajectory(),
@@ -363,16 +419,14 @@ def open_source(
             noise=LandmarkNoise(image_px=1.0, world_m=0.002),
             realtime=realtime,
         )
-    if spec.isdigit():
-        return WebcamSource(int(spec), size=size or (640, 480), fps=fps)
-    if spec.startswith("/dev/video"):
-        return WebcamSource(spec, size=size or (640, 480), fps=fps)
-    path = Path(spec)
-    if path.is_dir():
-        return ImageFolderSource(path, fps=fps, size=size, realtime=realtime)
-    if not path.exists():
-        raise DsteleopError(
-            f"source not found: {spec} "
-            "(give a video file, an image folder, a camera index or 'synthetic')"
-        )
-    return VideoFileSource(path, realtime=realtime, size=size)
+    if spec.kind == "webcam":
+        device: int | str = int(spec.target) if spec.target.isdigit() else spec.target
+        return WebcamSource(device, size=size or (640, 480), fps=fps)
+    if spec.kind == "images":
+        return ImageFolderSource(Path(spec.target), fps=fps, size=size, realtime=realtime)
+    if spec.kind == "video":
+        path = Path(spec.target)
+        if not path.exists():
+            raise InputError(f"video not found: {path} (a source is {SOURCE_GRAMMAR})")
+        return VideoFileSource(path, realtime=realtime, size=size)
+    raise ConfigError(f"--source {spec.kind} is not a tracking source here")

@@ -206,7 +206,7 @@ def scripted_trajectory(
     The palm faces the camera at `center_cam_m`; over one period it sweeps +-8 cm sideways,
     +-5 cm up and down and 6 cm towards the camera, turns up to +-0.5 rad about each axis,
     and closes the fingers to a grasp and opens them again. Stands in for the stochastic
-    operator model (`operator_model.py`) where that is not available.
+    operator model (`app/operator/open_loop.py`) where that is not available.
 
     Args:
         center_cam_m: centre of the motion in the camera frame [m].

@@ -99,6 +99,8 @@ class HandSample:
         raw_openness: (5,) unfiltered openness (NaN when not detected).
         width_px: image width [px].
         height_px: image height [px].
+        image: the frame's BGR pixels, attached by the live `TrackingStream` for a viewer
+            (None otherwise: headless runs keep thousands of samples and no pixels).
     """
 
     seq: int
@@ -117,6 +119,7 @@ class HandSample:
     raw_openness: Array
     width_px: int
     height_px: int
+    image: Image | None = None
 
     @property
     def has_pose(self) -> bool:

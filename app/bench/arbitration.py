@@ -1,0 +1,127 @@
+"""Bench group `arbitration`: the one arbitration kernel (`arbitration/arbiters.py`) in DS mode.
+
+    ds_step_us              one unbatched step (a batch of one, as the 30 Hz loop runs it),
+                            6 + 5 dims: median, p95, p99 [us] over many distinct inputs
+    ds_batched_steps_per_s  1000 trajectories per call, 6 + 5 dims, random states
+    ds_batched_call_ms      the same calls: median and p95 [ms]
+    ds_batched_by_case      the batched step per dims (11, 6) and states (random, tick_like)
+
+The headline figures use independent random states (the worst case: random rotations put some
+pairs near pi, and erfc is slowest for the large arguments unrelated states give). The batched
+step is also timed on tick-like states (the current pose between start and goal, the previous
+ones a tick away, the hand near the robot: what a session or the simulation study feeds it)
+and with 6 dims, the simulation study's planar workload, under `ds_batched_by_case`.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from dsteleop.app.bench import percentiles_us
+from dsteleop.arbitration import ArbitrationInput, HandState, make_arbiter, so3_exp
+from dsteleop.arbitration.arbiters import Arbiter
+
+
+def _states(rng: np.random.Generator, batch: tuple[int, ...], n_fingers: int) -> HandState:
+    return HandState(
+        rng.uniform(-0.5, 0.5, (*batch, 3)),
+        so3_exp(rng.normal(0.0, 1.0, (*batch, 3))),
+        rng.uniform(0.0, 1.0, (*batch, n_fingers)),
+    )
+
+
+def _inputs(rng: np.random.Generator, batch: tuple[int, ...], n_fingers: int) -> ArbitrationInput:
+    H, Hp, Hs, C, Cp, Cs, G = (_states(rng, batch, n_fingers) for _ in range(7))
+    return ArbitrationInput(H, Hp, Hs, C, Cp, Cs, G, dt=1.0 / 30.0)
+
+
+def run(quick: bool = False) -> dict[str, Any]:
+    rng = np.random.default_rng(0)
+    n_fingers = 5
+    arbiter = make_arbiter("DS")
+
+    # Single step (batch shape (), the loop's): many distinct random inputs, each timed alone.
+    reps = 2000 if quick else 20000
+    inputs = [_inputs(rng, (), n_fingers) for _ in range(min(reps, 500))]
+    state = arbiter.initial_state(6 + n_fingers)
+    samples = []
+    for i in range(reps):
+        inp = inputs[i % len(inputs)]
+        t0 = time.perf_counter()
+        state, _ = arbiter.step(state, inp)
+        samples.append(time.perf_counter() - t0)
+
+    # Batched: 1000 trajectories per call.
+    batch = 1000
+    calls = 20 if quick else 200
+    cases = {}
+    for dims in (11, 6):
+        for kind, make in (("random", _inputs), ("tick_like", _tick_like)):
+            bsamples = _batched_samples(arbiter, make(rng, (batch,), dims - 6), batch, calls)
+            cases[f"{dims}_dims_{kind}"] = {
+                "steps_per_s": round(batch / float(np.median(bsamples))),
+                "call_ms_median": round(float(np.median(bsamples)) * 1e3, 3),
+                "call_ms_p95": round(float(np.percentile(bsamples, 95)) * 1e3, 3),
+            }
+    head = cases["11_dims_random"]
+    return {
+        "ds_step_us": percentiles_us(samples),
+        "ds_batched_steps_per_s": head["steps_per_s"],
+        "ds_batched_call_ms": {
+            "batch": batch,
+            "dims": 11,
+            "median": head["call_ms_median"],
+            "p95": head["call_ms_p95"],
+        },
+        "ds_batched_by_case": cases,
+    }
+
+
+def _batched_samples(
+    arbiter: Arbiter, inp: ArbitrationInput, batch: int, calls: int
+) -> list[float]:
+    """Seconds per call of the batched DS step, the filter state carried from call to call."""
+    state = arbiter.initial_state(6 + inp.X_current.n_fingers, (batch,))
+    samples = []
+    for _ in range(calls):
+        t0 = time.perf_counter()
+        state, _ = arbiter.step(state, inp)
+        samples.append(time.perf_counter() - t0)
+    return samples
+
+
+def _tick_like(
+    rng: np.random.Generator, batch: tuple[int, ...], n_fingers: int
+) -> ArbitrationInput:
+    """States shaped like a real tick: the robot part-way from its start to the goal, its
+    previous state one tick of motion away, the hand a few cm and degrees off the robot and
+    one tick from its own previous state, the hand's start near the robot's."""
+
+    def near(X: HandState, dp: float, dr: float, dg: float) -> HandState:
+        return HandState(
+            X.position + rng.normal(0.0, dp, (*batch, 3)),
+            so3_exp(rng.normal(0.0, dr, (*batch, 3))) @ X.rotation,
+            np.clip(X.openness + rng.normal(0.0, dg, (*batch, n_fingers)), 0.0, 1.0),
+        )
+
+    start = _states(rng, batch, n_fingers)
+    goal = near(start, 0.2, 0.5, 0.4)
+    s = rng.uniform(0.0, 1.0, (*batch, 1))
+    cur = near(
+        HandState(
+            start.position + s * (goal.position - start.position),
+            start.rotation,
+            start.openness + s * (goal.openness - start.openness),
+        ),
+        0.01,
+        0.3,
+        0.01,
+    )
+    prev = near(cur, 0.005, 0.01, 0.01)
+    hum = near(cur, 0.02, 0.1, 0.05)
+    hum_prev = near(hum, 0.005, 0.01, 0.01)
+    hum_start = near(start, 0.02, 0.05, 0.02)
+    return ArbitrationInput(hum, hum_prev, hum_start, cur, prev, start, goal, dt=1.0 / 30.0)

@@ -1,0 +1,77 @@
+"""Bench group `loop`: the live loop at 30 Hz with tracking on a real video and the robot.
+
+Runs `TeleopLoop` in real time on the monotonic clock for 60 s (10 s with --quick), after a
+2 s warm-up that is not counted (the model loads on the first frames): capture
+and MediaPipe tracking of a real hand video (paced at its frame rate, looping) in their own
+threads, DS arbitration and the PyBullet robot in the loop. Reports start-time jitter
+(p50/p99/max), tick duration, overruns, and frame-to-command latency (capture of a frame to
+the robot command computed from it; p50/p95/p99). Falls back to the demo source when the
+test-data folder is not given (`--data DIR`, docs/test-data.md).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from dsteleop.app.bench import data_dir
+from dsteleop.app.inputs.tracked import TrackedHandInput
+from dsteleop.app.loop import LoopConfig, TeleopLoop
+from dsteleop.app.loop.timing import raise_priority
+from dsteleop.app.plants.kitchen import KitchenPlant
+from dsteleop.arbitration import Mode
+from dsteleop.tracking.mapping import WorkspaceMapping
+from dsteleop.tracking.pipeline import HandTracker, TrackingStream
+from dsteleop.tracking.sources import VideoFileSource
+
+VIDEO = "open_hand_wave_landscape.mp4"
+
+
+def shared_video() -> Path | None:
+    """The test video, when the test-data folder is given (docs/test-data.md)."""
+    data = data_dir()
+    p = None if data is None else data / "videos" / VIDEO
+    return p if p is not None and p.is_file() else None
+
+
+def run(quick: bool = False) -> dict[str, Any]:
+    seconds = 10.0 if quick else 60.0
+    raise_priority()  # as `dsteleop serve` does
+    video = shared_video()
+    plant = KitchenPlant("spoon", seed=0)
+    if video is not None:
+        stream = TrackingStream(VideoFileSource(video, realtime=True, loop=True), HandTracker())
+        hand = TrackedHandInput.from_stream(stream.start(), WorkspaceMapping())
+        source = f"video {video.name} (looping, MediaPipe full model)"
+    else:
+        from dsteleop.app.cli.compose import build
+        from dsteleop.app.cli.options import LoopOptions
+
+        plant.close()
+        built = build(LoopOptions.of("demo", LoopConfig(mode=Mode.DS)), realtime=True)
+        return _measure(built.loop, seconds, "demo (synthetic operator)")
+    loop = TeleopLoop(LoopConfig(mode=Mode.DS), hand, plant)
+    return _measure(loop, seconds, source)
+
+
+def _measure(
+    loop: TeleopLoop, seconds: float, source: str, warmup_s: float = 2.0
+) -> dict[str, Any]:
+    try:
+        # Warm-up: the first frames load the model and fill caches; then measure.
+        loop.run(max_ticks=round(warmup_s * loop.config.rate_hz))
+        loop.rate.reset_stats()
+        loop.latency_ms.clear()
+        loop.run(max_ticks=round(seconds * loop.config.rate_hz))
+        summary = loop.timing_summary()
+    finally:
+        loop.close()
+    return {
+        "loop": {
+            "source": source,
+            "seconds": seconds,
+            "rate_hz_target": loop.config.rate_hz,
+            "rate_hz": round(summary["ticks"] / seconds, 3),
+            **summary,
+        }
+    }

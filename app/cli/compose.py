@@ -1,0 +1,122 @@
+"""The composition root: builds a ready loop from the user's choices, wiring every port.
+
+    demo            the built-in demo: a synthetic operator doing the pick-and-place task
+    webcam:N        camera index N (or webcam:/dev/videoN)
+    video:PATH      a video file (paced at its frame rate when live)
+    auto            the first camera that opens, otherwise the demo (with a line saying so)
+
+`realtime=True` (the live app) runs capture and tracking in their own threads and the loop on
+the monotonic clock; `realtime=False` (headless runs) reads and tracks each frame in the loop's
+thread on a manual clock, as fast as the machine allows, deterministically.
+
+Everything the loop talks to is given to its constructor here: nothing is attached to a
+built loop afterwards.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from dsteleop.app.cli.options import LoopOptions
+from dsteleop.app.inputs.demo import DemoCamera, DemoConfig, DemoOperator, demo_source
+from dsteleop.app.inputs.tracked import TrackedHandInput
+from dsteleop.app.loop import TeleopLoop
+from dsteleop.app.loop.timing import ManualClock, MonotonicClock
+from dsteleop.app.plants.kitchen import KitchenPlant
+from dsteleop.app.ports import Observer
+from dsteleop.app.session.video import FrameRecorder
+from dsteleop.app.session.writer import HistoryFile
+from dsteleop.tracking.mapping import MappingConfig, WorkspaceMapping
+from dsteleop.tracking.pipeline import HandTracker, TrackingStream
+from dsteleop.tracking.sources import FrameSource, SourceSpec, available_cameras, open_source
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Built:
+    """A ready loop and what the caller may need beside it."""
+
+    loop: TeleopLoop
+    demo: DemoOperator | None
+    source: SourceSpec
+
+
+def resolve_source(spec: SourceSpec) -> SourceSpec:
+    """`auto` -> the first camera that opens, or `demo` (with a line saying so)."""
+    if spec.kind != "auto":
+        return spec
+    cams = available_cameras()
+    if cams:
+        return SourceSpec("webcam", cams[0])
+    log.info("no webcam opens: starting the built-in demo (synthetic operator)")
+    return SourceSpec("demo")
+
+
+def build(
+    options: LoopOptions,
+    *,
+    realtime: bool,
+    export_scene: bool = False,
+    history_dir: Path | None = None,
+    record_root: Path | None = None,
+    observers: tuple[Observer, ...] = (),
+    mapping: MappingConfig | None = None,
+) -> Built:
+    """Build the plant, the hand input and the loop (module docstring).
+
+    Args:
+        options: the loop options of the command.
+        realtime: live threads and clock (True) or headless and deterministic (False).
+        export_scene: compute link poses each tick (for a viewer).
+        history_dir: where the operator history persists (the recording root), or None.
+        record_root: where a recording requested from the page is written, or None.
+        observers: more observers of every tick.
+        mapping: camera -> robot mapping (default `MappingConfig()`).
+    """
+    spec = resolve_source(options.source)
+    mapping = mapping or MappingConfig()
+    plant = KitchenPlant(
+        options.utensil, options.seed, options.goal_noise_m, export_scene=export_scene
+    )
+    try:
+        start = plant.reset()
+        demo: DemoOperator | None = None
+        frames: FrameRecorder | None = None
+        if spec.kind == "demo":
+            demo = DemoOperator(plant.true_goals, start, DemoConfig(seed=options.seed))
+            source: FrameSource = demo_source(
+                demo, DemoCamera(start, mapping), realtime=realtime, seed=options.seed
+            )
+        else:
+            source = open_source(spec, realtime=realtime)
+            if options.record_video:
+                frames = FrameRecorder(source)
+                source = frames
+        delay = options.loop.input_delay_s
+        if realtime:
+            stream = TrackingStream(source, HandTracker()).start()
+            hand = TrackedHandInput.from_stream(stream, WorkspaceMapping(mapping), delay)
+        else:
+            hand = TrackedHandInput.from_source(
+                source, HandTracker(), WorkspaceMapping(mapping), delay, t0_s=0.0
+            )
+        meta: dict[str, Any] = {"source_kind": spec.kind, "seed": options.seed}
+        loop = TeleopLoop(
+            options.loop,
+            hand,
+            plant,
+            clock=MonotonicClock() if realtime else ManualClock(0.0),
+            observers=(*((demo,) if demo is not None else ()), *observers),
+            history_file=None if history_dir is None else HistoryFile(history_dir),
+            frame_recorder=frames,
+            record_root=record_root,
+            meta=meta,
+        )
+    except BaseException:
+        plant.close()
+        raise
+    return Built(loop, demo, spec)

@@ -1,0 +1,80 @@
+"""Small pieces the commands share: an output folder check and a terminal progress bar."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import IO
+
+from dsteleop.errors import InputError
+
+
+def prepare_out_dir(path: Path) -> Path:
+    """Create `path` if needed and check it is writable (one-line error otherwise)."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        probe = path / ".dsteleop-write-test"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as exc:
+        reason = exc.strerror or str(exc)
+        raise InputError(f"cannot write to output directory {str(path)!r}: {reason}") from None
+    return path
+
+
+class Progress:
+    """A one-line progress bar on a terminal stream (nothing when disabled).
+
+    Args:
+        total: units of work.
+        stream: where to draw (stderr; logs and JSON results stay on their own streams).
+        enabled: draw at all (commands enable it on a terminal).
+        label: the command, shown first.
+        unit: what is counted.
+    """
+
+    def __init__(
+        self,
+        total: int,
+        stream: IO[str],
+        enabled: bool,
+        label: str,
+        unit: str,
+        width: int = 30,
+    ) -> None:
+        self.total, self.stream, self.enabled, self.width = max(total, 1), stream, enabled, width
+        self.label, self.unit = label, unit
+        self.done = 0
+        self.t0 = time.monotonic()
+        self._last = -1.0
+
+    def __enter__(self) -> Progress:
+        self._draw(force=True)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.enabled:
+            self._draw(force=True)
+            self.stream.write("\n")
+            self.stream.flush()
+
+    def advance(self, n: int = 1) -> None:
+        self.done = min(self.total, self.done + int(n))
+        self._draw()
+
+    def _draw(self, force: bool = False) -> None:
+        if not self.enabled:
+            return
+        now = time.monotonic()
+        if not force and now - self._last < 0.1 and self.done < self.total:
+            return
+        self._last = now
+        frac = self.done / self.total
+        fill = round(frac * self.width)
+        bar = "#" * fill + "." * (self.width - fill)
+        msg = (
+            f"\r{self.label} [{bar}] {frac:4.0%} {self.done}/{self.total} {self.unit} "
+            f"{now - self.t0:5.1f} s"
+        )
+        self.stream.write(msg)
+        self.stream.flush()

@@ -1,0 +1,98 @@
+"""`dsteleop run`: the loop without a browser, live or headless; records sessions.
+
+    dsteleop run --source demo --mode DS --utensil spoon --seed 0 --record DIR
+
+Headless (the default for `demo` and `video:`) runs as fast as the machine allows on a
+manual clock, deterministically; `--realtime` runs at the loop rate on the monotonic clock
+(always for a webcam). Prints one JSON summary on stdout: outcome, ticks, simulated time,
+wall time, timing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+import sys
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from dsteleop.app.cli.options import LoopOptions, add_loop_options, loop_options
+from dsteleop.app.cli.signals import StopOnSignal
+from dsteleop.errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class RunCommand:
+    """The `run` command's settings (logged at start).
+
+    Attributes:
+        options: the loop options shared with `serve`.
+        realtime: run at the loop rate on the monotonic clock (live).
+        max_seconds: stop after this much loop time [s].
+    """
+
+    options: LoopOptions
+    realtime: bool
+    max_seconds: float
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_loop_options(parser, default_source="demo")
+    parser.add_argument("--realtime", action="store_true", help="run at the loop rate (live)")
+    parser.add_argument(
+        "--max-seconds", type=float, default=120.0, help="stop after this loop time [s]"
+    )
+
+
+def command(args: argparse.Namespace) -> RunCommand:
+    options = loop_options(args)
+    if not args.max_seconds > 0:
+        raise ConfigError(f"--max-seconds must be > 0, got {args.max_seconds}")
+    live = options.source.kind in ("webcam", "auto")
+    return RunCommand(options, bool(args.realtime or live), float(args.max_seconds))
+
+
+def run(args: argparse.Namespace) -> int:
+    cmd = command(args)
+    from dsteleop.app.cli.compose import build
+
+    opts = cmd.options
+    log.info(
+        "run: source %s, mode %s, realtime %s", opts.source, opts.loop.mode.value, cmd.realtime
+    )
+    history_dir = opts.record.parent if opts.record is not None else None
+    built = build(opts, realtime=cmd.realtime, history_dir=history_dir)
+    loop = built.loop
+    max_ticks = int(cmd.max_seconds * opts.loop.rate_hz)
+    t0 = time.perf_counter()
+    with StopOnSignal(loop, (signal.SIGTERM,)):
+        try:
+            if opts.record is not None:
+                loop.start_recording(opts.record, {"command": "run", "argv": sys.argv[1:]})
+            if cmd.realtime:
+                loop.run(max_ticks=max_ticks, until_outcome=True)
+            else:
+                loop.run_headless(max_ticks)
+        finally:
+            loop.close()
+    wall = time.perf_counter() - t0
+    summary: dict[str, Any] = {
+        "outcome": loop.outcome or "none",
+        "ticks": loop.tick_index,
+        "loop_s": round(loop.tick_index / opts.loop.rate_hz, 3),
+        "wall_s": round(wall, 3),
+        "mode": loop.mode.value,
+        "seed": opts.seed,
+        "source": built.source.kind,
+        "events": [f"{k}:{e}" for k, e in loop.events_log],
+        "session": None if opts.record is None else str(opts.record),
+        "timing": loop.rate.summary(),
+    }
+    json.dump(summary, sys.stdout)
+    sys.stdout.write("\n")
+    return 0

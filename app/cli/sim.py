@@ -1,0 +1,201 @@
+"""`dsteleop sim`: the paper's simulation study (Section IV-A/B), S vs DS on planar trajectories.
+
+    dsteleop sim --trajectories 1000 --seed 0 --out DIR [--workers N] [--operator side|aligned]
+                 [--param NAME=VALUE] [--config FILE.json]
+
+writes DIR/summary.json, DIR/summary.md (shaped like the paper's Table I) and PNG figures
+shaped like Fig. 5b-5d and 6 (`--example K` picks the trajectory of 5c, 5d and 6), and prints
+one JSON object on stdout. The computation is `app/study/core.py` (pure); this module is
+the edge: arguments, progress bar, files. docs/sim.md describes the study and the operator.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from dsteleop.app.cli.options import add_config_options, arbitration_config
+from dsteleop.app.cli.progress import Progress, prepare_out_dir
+from dsteleop.arbitration import Mode
+from dsteleop.errors import ConfigError
+
+log = logging.getLogger("dsteleop.sim")
+
+OPERATORS = ("side", "aligned")
+
+
+@dataclass(frozen=True)
+class SimCommand:
+    """The `sim` command's settings.
+
+    Attributes:
+        study: the study's configuration (`app.study.core.SimConfig`).
+        out: the output folder.
+        workers: processes.
+        figures: draw the PNG figures.
+        progress: draw the progress bar (None: on a terminal).
+    """
+
+    study: Any
+    out: Path
+    workers: int
+    figures: bool
+    progress: bool | None
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--trajectories",
+        type=int,
+        default=1000,
+        metavar="N",
+        help="number of operator trajectories (default 1000)",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="master seed (default 0)")
+    parser.add_argument(
+        "--out", required=True, metavar="DIR", help="output directory (created if missing)"
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=0,
+        metavar="N",
+        help="processes (default 0: one per core, at most 4)",
+    )
+    parser.add_argument(
+        "--operator",
+        default="side",
+        help=(
+            "side (the paper's scenario: agrees on position, prefers another heading) "
+            "or aligned (agrees on every dimension)"
+        ),
+    )
+    parser.add_argument(
+        "--modes",
+        default="S,DS,manual,autonomous",
+        help="comma-separated arbitration modes (default all four)",
+    )
+    parser.add_argument(
+        "--example",
+        type=int,
+        default=None,
+        metavar="K",
+        help="trajectory drawn in Fig. 5c, 5d and 6 (default: the first that moves y before x)",
+    )
+    parser.add_argument(
+        "--goal-sigma",
+        type=float,
+        default=None,
+        metavar="M",
+        help="robot goal position noise per axis [m] (default 0.02)",
+    )
+    parser.add_argument(
+        "--success-radius",
+        type=float,
+        default=None,
+        metavar="M",
+        help="success radius R [m] (default 0.03)",
+    )
+    parser.add_argument(
+        "--success-heading",
+        type=float,
+        default=None,
+        metavar="RAD",
+        help="success heading tolerance delta [rad] (default 0.35)",
+    )
+    add_config_options(parser)
+    parser.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    bar = parser.add_mutually_exclusive_group()
+    bar.add_argument(
+        "--progress",
+        dest="progress",
+        action="store_true",
+        default=None,
+        help="always draw the progress bar",
+    )
+    bar.add_argument(
+        "--no-progress", dest="progress", action="store_false", help="never draw the progress bar"
+    )
+
+
+def command(args: argparse.Namespace) -> SimCommand:
+    """The command's settings; bad values raise ConfigError with one line."""
+    from dsteleop.app.study.core import SimConfig
+    from dsteleop.app.study.run import workers_for
+
+    modes = tuple(Mode.parse(s.strip()) for s in str(args.modes).split(","))
+    arb, _ = arbitration_config(args)
+    if args.operator not in OPERATORS:
+        raise ConfigError(
+            f"unknown operator {args.operator!r} (choose from {', '.join(OPERATORS)})"
+        )
+    extra: dict[str, Any] = {}
+    for arg, name in (
+        ("goal_sigma", "goal_sigma_m"),
+        ("success_radius", "success_radius_m"),
+        ("success_heading", "success_heading_rad"),
+    ):
+        v = getattr(args, arg)
+        if v is not None:
+            extra[name] = float(v)
+    if args.trajectories < 1:
+        raise ConfigError(f"--trajectories must be >= 1, got {args.trajectories}")
+    study = SimConfig(
+        trajectories=args.trajectories,
+        seed=args.seed,
+        operator=args.operator,
+        modes=modes,
+        example=args.example,
+        arbitration=arb,
+        **extra,
+    )
+    return SimCommand(
+        study=study,
+        out=Path(args.out),
+        workers=workers_for(args.workers, study.trajectories),
+        figures=not args.no_figures,
+        progress=args.progress,
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    t0 = time.monotonic()
+    cmd = command(args)
+    from dsteleop.app.study import core, figures, report
+    from dsteleop.app.study.run import simulate
+
+    cfg = cmd.study
+    out = prepare_out_dir(cmd.out)
+    modes = ",".join(m.value for m in cfg.modes)
+    log.info(
+        "sim: %d trajectories, operator %s, modes %s, %d worker(s), out %s",
+        *(cfg.trajectories, cfg.operator, modes, cmd.workers, out),
+    )
+    show = sys.stderr.isatty() if cmd.progress is None else bool(cmd.progress)
+    files = ["summary.json", "summary.md"]
+    example = cfg.example if cfg.example is not None else core.first_lead_index(cfg)
+
+    def example_figures() -> None:
+        # Needs only the configuration: drawn while the workers simulate.
+        files.extend(figures.write_example_figures(cfg, example, out))
+
+    with Progress(
+        cfg.trajectories * len(cfg.modes), sys.stderr, show, "sim", "trajectory-modes"
+    ) as bar:
+        result = simulate(cfg, cmd.workers, bar, example_figures if cmd.figures else None)
+    summary = core.summarise(result)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False) + "\n")
+    (out / "summary.md").write_text(report.markdown(summary))
+    if cmd.figures:
+        files.insert(2, figures.write_distribution_figure(result, out))
+    printed = report.brief(summary, out, files, time.monotonic() - t0, cmd.workers)
+    printed["example"] = example if cmd.figures else None
+    json.dump(printed, sys.stdout, indent=2)
+    sys.stdout.write("\n")
+    return 0

@@ -1,0 +1,182 @@
+"""One object owns the loop's timing: a fixed-rate clock that measures itself.
+
+`RateClock` schedules tick k at `t0 + k * period` on a monotonic clock. After a late tick it
+re-anchors (the next deadline is one period after the late start) instead of bursting to catch
+up, and counts the overrun. Every tick records its start-time jitter (actual start minus
+scheduled start) and its duration; `summary()` gives medians and tail percentiles.
+
+`ports.Clock` is the seam tests use to inject time: `MonotonicClock` is the real one; `ManualClock`
+advances only when told to.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from dsteleop.app.ports import Clock
+
+log = logging.getLogger(__name__)
+
+
+def raise_priority(niceness: int = -10) -> bool:
+    """Ask the OS to schedule this process ahead of ordinary work (a browser rendering on the
+    same cores, a build). Threads started afterwards inherit it.
+
+    Linux with autogroup scheduling (`kernel.sched_autogroup_enabled = 1`) first shares the
+    CPU between sessions, so a process's niceness only counts inside its own session: a
+    local browser (its own session) then takes half the CPU whatever our niceness. When this
+    process leads its own session (started with `setsid`), the session's autogroup is ours
+    alone and gets the same niceness; otherwise it is left as it is (it would raise every
+    process of the user's terminal). Both need root or CAP_SYS_NICE; without them nothing
+    changes and False is returned.
+    """
+    try:
+        current = os.nice(0)
+        if current > niceness:
+            os.nice(niceness - current)
+    except (OSError, AttributeError):
+        log.info("could not raise the process priority (needs CAP_SYS_NICE); running as is")
+        return False
+    autogroup = "/proc/self/autogroup"
+    if os.path.exists(autogroup) and os.getsid(0) == os.getpid():
+        try:
+            with open(autogroup, "w") as f:
+                f.write(str(niceness))
+        except OSError:
+            log.info("could not raise the session's autogroup priority")
+    return True
+
+
+class MonotonicClock:
+    """`time.monotonic()`; sleeps with `time.sleep`, then spins the last 0.5 ms."""
+
+    def now(self) -> float:
+        return time.monotonic()
+
+    def sleep_until(self, t_s: float) -> None:
+        while True:
+            remaining = t_s - time.monotonic()
+            if remaining <= 0:
+                return
+            if remaining > 0.0015:
+                time.sleep(remaining - 0.001)
+            elif remaining > 0.0005:
+                time.sleep(0)
+
+
+class ManualClock:
+    """A clock for tests and headless replay: time moves only by `advance` or `sleep_until`."""
+
+    def __init__(self, t0_s: float = 0.0) -> None:
+        self._t = t0_s
+        self._lock = threading.Lock()
+
+    def now(self) -> float:
+        with self._lock:
+            return self._t
+
+    def advance(self, dt_s: float) -> None:
+        with self._lock:
+            self._t += dt_s
+
+    def sleep_until(self, t_s: float) -> None:
+        with self._lock:
+            self._t = max(self._t, t_s)
+
+
+@dataclass(frozen=True)
+class TickTiming:
+    """Timing of one tick [s]: when it was due, when it started, how late it started."""
+
+    index: int
+    t_due_s: float
+    t_start_s: float
+    jitter_s: float
+    overrun: bool
+
+
+class RateClock:
+    """Fixed-rate scheduling with re-anchoring after overruns, and its own statistics.
+
+    Args:
+        rate_hz: ticks per second.
+        clock: time source (monotonic by default).
+        history: how many recent ticks the statistics cover.
+    """
+
+    def __init__(self, rate_hz: float, clock: Clock | None = None, history: int = 1800) -> None:
+        if not rate_hz > 0:
+            raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
+        self.period_s = 1.0 / rate_hz
+        self.clock = clock or MonotonicClock()
+        self._next_s: float | None = None
+        self._index = 0
+        self.overruns = 0
+        self._jitter = deque[float](maxlen=history)
+        self._duration = deque[float](maxlen=history)
+        self._last_start: float | None = None
+
+    def wait(self) -> TickTiming:
+        """Sleep until the next tick is due; return its timing."""
+        now = self.clock.now()
+        if self._next_s is None:
+            self._next_s = now
+        due = self._next_s
+        if now < due:
+            self.clock.sleep_until(due)
+            now = self.clock.now()
+        jitter = now - due
+        overrun = jitter > self.period_s
+        if overrun:
+            # Late by more than a period: re-anchor on now instead of bursting to catch up.
+            self.overruns += 1
+            self._next_s = now + self.period_s
+        else:
+            self._next_s = due + self.period_s
+        self._jitter.append(jitter)
+        timing = TickTiming(self._index, due, now, jitter, overrun)
+        self._index += 1
+        self._last_start = now
+        return timing
+
+    def done(self) -> float:
+        """Mark the end of the current tick's work; returns its duration [s]."""
+        if self._last_start is None:
+            return 0.0
+        d = self.clock.now() - self._last_start
+        self._duration.append(d)
+        return d
+
+    def restart(self) -> None:
+        """Start the schedule afresh at the next `wait` (statistics are kept)."""
+        self._next_s = None
+        self._last_start = None
+
+    @property
+    def ticks(self) -> int:
+        return self._index
+
+    def reset_stats(self) -> None:
+        """Forget the statistics so far (after a warm-up), keep the schedule."""
+        self._jitter.clear()
+        self._duration.clear()
+        self.overruns = 0
+        self._index = 0
+
+    def summary(self) -> dict[str, float | int]:
+        """Jitter and duration statistics [ms] over the recent history, and counts."""
+        out: dict[str, float | int] = {"ticks": self._index, "overruns": self.overruns}
+        for name, values in (("jitter_ms", self._jitter), ("tick_ms", self._duration)):
+            if values:
+                a = np.asarray(values) * 1e3
+                out[f"{name}_p50"] = round(float(np.median(a)), 3)
+                out[f"{name}_p99"] = round(float(np.percentile(a, 99)), 3)
+                out[f"{name}_max"] = round(float(a.max()), 3)
+        return out

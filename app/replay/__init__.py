@@ -1,0 +1,1 @@
+"""Headless replay of sessions and videos (`core`, `video`), and their plots (`plots`)."""

@@ -1,0 +1,222 @@
+"""Headless replay of recorded sessions (and videos), and the paper's metrics over runs.
+
+A session replays its recorded human input through a fresh loop, as fast as the machine
+allows, once per requested mode: the same hand input at the same tick times, a fresh robot
+and task with the session's seed and goal noise (`robot="simulated"`), so the modes are
+paired; or against the robot the session recorded (`robot="recorded"`, open loop: the
+recorded arbitration comes back exactly, on any machine). `as_recorded` reads a session's
+own ticks as it happened.
+
+Metrics per run (paper Section IV-D), over the ticks where the arbitration ran; actions are
+compared in units of each dimension's velocity limit (U / v_max), so metres, radians and
+openness weigh alike:
+
+    cosine distance  mean over actions of 1 - U_h.U_out / (|U_h| |U_out|)  (zero-norm skipped)
+    agreement        mean over actions of [U_h.U_out > 0]
+    success, time    the task's outcome and its duration [s]
+    mean_alpha       per dimension
+
+Across sessions: success rate (Laplace, adjusted-Wald CI), geometric-mean time (CI), and the
+paper's tests between modes (N-1 chi-squared on success, t-tests on log time and on the
+per-session cosine distance and agreement).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dsteleop.app.inputs.recorded import RecordedHandInput
+from dsteleop.app.loop import LoopConfig, TeleopLoop
+from dsteleop.app.loop.timing import ManualClock
+from dsteleop.app.ports import HandInput, Plant
+from dsteleop.app.session.reader import Session
+from dsteleop.app.session.schema import TickRecord
+from dsteleop.app.session.trace import Trace
+from dsteleop.arbitration import Mode, OperatorHistory, metrics
+
+Array = NDArray[np.float64]
+Robot = Literal["simulated", "recorded"]
+
+
+def session_config(session: Session, mode: Mode | None) -> LoopConfig:
+    """The loop config the session recorded, in `mode` when given."""
+    cfg = LoopConfig.from_dict(session.meta.get("loop", {}))
+    return cfg if mode is None else cfg.replace(mode=mode)
+
+
+def run_headless(
+    name: str,
+    hand: HandInput,
+    tick_times: Sequence[float],
+    cfg: LoopConfig,
+    plant: Plant,
+    history: OperatorHistory | None = None,
+) -> Trace:
+    """Run a fresh loop over `tick_times` on a manual clock, as fast as possible; its trace."""
+    clock = ManualClock(tick_times[0] if tick_times else 0.0)
+    loop = TeleopLoop(cfg, hand, plant, clock=clock, history=history or OperatorHistory())
+    records: list[TickRecord] = []
+    try:
+        for t in tick_times:
+            clock.sleep_until(t)
+            records.append(loop.tick(t))
+    finally:
+        loop.close()
+    v_max = cfg.arbitration.v_max(len(plant.finger_names))
+    return Trace.of(name, cfg.mode, records, v_max)
+
+
+def simulated_plant(plant_meta: dict[str, Any]) -> Plant:
+    """A fresh PyBullet kitchen built from a session's plant metadata."""
+    from dsteleop.app.plants.kitchen import plant_from_meta
+
+    return plant_from_meta(plant_meta)
+
+
+def replay_session(session: Session, mode: Mode, robot: Robot = "simulated") -> Trace:
+    """Re-run the session's recorded hand input through a fresh loop in `mode`.
+
+    Args:
+        session: the session.
+        mode: arbitration mode of the replay.
+        robot: "simulated" (a fresh PyBullet robot and task, closed loop) or "recorded"
+            (the robot states the session recorded, open loop).
+    """
+    from dsteleop.app.plants.recorded import RecordedPlant
+
+    hand = RecordedHandInput(session.records, f"replay of {session.name}")
+    plant: Plant = (
+        RecordedPlant(session)
+        if robot == "recorded"
+        else simulated_plant(session.meta.get("plant", {}))
+    )
+    return run_headless(
+        session.name,
+        hand,
+        [r.t_s for r in session.records],
+        session_config(session, mode),
+        plant,
+        session.history,
+    )
+
+
+def as_recorded(session: Session) -> Trace:
+    """The session's own ticks, as it happened."""
+    cfg = session_config(session, None)
+    F = len(session.dims) - 6
+    return Trace.of(session.name, cfg.mode, session.records, cfg.arbitration.v_max(F))
+
+
+# --- metrics --------------------------------------------------------------------------------
+
+
+def action_metrics(trace: Trace) -> dict[str, float | None]:
+    """Cosine distance and agreement over the arbitrated ticks, in v_max units."""
+    m = trace.arbitrated
+    U_h = trace.step.U_human[m] / trace.v_max
+    U_o = trace.step.U_out[m] / trace.v_max
+    cos = metrics.cosine_distance(U_h, U_o)
+    agree = metrics.agreement(U_h, U_o)
+    return {"cosine_distance": num(cos.mean), "agreement": num(agree.ratio)}
+
+
+def num(x: Any) -> float | None:
+    """A finite float, or None."""
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return None
+    return v if math.isfinite(v) else None
+
+
+def session_summary(name: str, recorded_s: float, traces: Sequence[Trace]) -> dict[str, Any]:
+    modes: dict[str, Any] = {}
+    for tr in traces:
+        alpha = tr.step.alpha
+        mean_alpha = {
+            d: num(np.nanmean(alpha[tr.arbitrated, i])) if tr.arbitrated.any() else None
+            for i, d in enumerate(tr.dims)
+        }
+        modes[tr.mode.value] = {
+            "success": tr.success,
+            "outcome": tr.outcome_name,
+            "time_s": round(tr.time_s, 4),
+            **action_metrics(tr),
+            "mean_alpha": mean_alpha,
+            "arbitrated_ticks": int(tr.arbitrated.sum()),
+        }
+    return {"name": name, "duration_s": round(recorded_s, 4), "modes": modes}
+
+
+def aggregate(
+    sessions: Sequence[dict[str, Any]], modes: Sequence[str]
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Per-mode aggregates over sessions and the paper's tests between modes."""
+    agg: dict[str, Any] = {}
+    per: dict[str, dict[str, list[float]]] = {}
+    for mode in modes:
+        rows = [s["modes"][mode] for s in sessions if mode in s["modes"]]
+        succ = [bool(r["success"]) for r in rows]
+        times = [r["time_s"] for r in rows if r["time_s"] and r["time_s"] > 0]
+        cos = [r["cosine_distance"] for r in rows if r["cosine_distance"] is not None]
+        agr = [r["agreement"] for r in rows if r["agreement"] is not None]
+        per[mode] = {"success": [float(x) for x in succ], "time": times, "cos": cos, "agr": agr}
+        sr = metrics.success_rate(sum(succ), len(succ)) if succ else None
+        gt = metrics.geometric_mean(times) if len(times) >= 1 else None
+        agg[mode] = {
+            "n": len(rows),
+            "success_rate": None if sr is None else jsonable(sr),
+            "time_s": None if gt is None else jsonable(gt),
+            "cosine_distance": num(np.mean(cos)) if cos else None,
+            "agreement": num(np.mean(agr)) if agr else None,
+        }
+    tests: dict[str, Any] = {}
+    for i, a in enumerate(modes):
+        for b in modes[i + 1 :]:
+            pa, pb = per[a], per[b]
+            entry: dict[str, Any] = {}
+            if pa["success"] and pb["success"]:
+                entry["success_n1_chi2"] = jsonable(
+                    metrics.n1_chi_squared(
+                        int(sum(pa["success"])),
+                        len(pa["success"]),
+                        int(sum(pb["success"])),
+                        len(pb["success"]),
+                    )
+                )
+            for name, k in (
+                ("log_time_ttest", "time"),
+                ("cosine_distance_ttest", "cos"),
+                ("agreement_ttest", "agr"),
+            ):
+                xa, xb = pa[k], pb[k]
+                if len(xa) >= 2 and len(xb) >= 2:
+                    ya, yb = (
+                        (np.log(xa), np.log(xb))
+                        if k == "time"
+                        else (np.asarray(xa), np.asarray(xb))
+                    )
+                    entry[name] = jsonable(metrics.t_test(ya, yb))
+            tests[f"{a}_vs_{b}"] = entry
+    return agg, tests
+
+
+def jsonable(obj: Any) -> Any:
+    """Dataclasses, numpy scalars and non-finite floats made JSON-ready."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {k: jsonable(v) for k, v in dataclasses.asdict(obj).items()}
+    if isinstance(obj, dict):
+        return {k: jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, (float, np.floating)):
+        return num(obj)
+    if isinstance(obj, np.integer):
+        return int(obj)
+    return obj

@@ -1,0 +1,129 @@
+"""Reading sessions back: metadata and tick records, tolerant of a crash-truncated end."""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from dsteleop.app.session.schema import READABLE, SCHEMA, TickRecord, decode
+from dsteleop.app.session.video import FRAMES, VIDEO
+from dsteleop.app.session.writer import META, TICKS
+from dsteleop.arbitration import Mode, OperatorHistory
+from dsteleop.errors import InputError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Session:
+    """A session read back.
+
+    Attributes:
+        folder: where it is.
+        meta: its metadata (`recordings/README.md`).
+        records: every complete tick, in order.
+        truncated: the last line was cut short (a killed process) and was skipped.
+    """
+
+    folder: Path
+    meta: dict[str, Any]
+    records: tuple[TickRecord, ...]
+    truncated: bool
+
+    @property
+    def name(self) -> str:
+        return self.folder.name
+
+    @property
+    def complete(self) -> bool:
+        return bool(self.meta.get("complete")) and not self.truncated
+
+    @property
+    def dims(self) -> tuple[str, ...]:
+        return tuple(self.meta.get("dims", ()))
+
+    @property
+    def mode(self) -> Mode:
+        return Mode.parse(str(self.meta.get("mode", "DS")))
+
+    @property
+    def history(self) -> OperatorHistory | None:
+        h = self.meta.get("operator_history")
+        return None if h is None else OperatorHistory.from_dict(h)
+
+    @property
+    def video(self) -> Path | None:
+        p = self.folder / VIDEO
+        return p if p.is_file() else None
+
+    @property
+    def frames(self) -> Path | None:
+        p = self.folder / FRAMES
+        return p if p.is_file() else None
+
+
+def is_session(folder: Path) -> bool:
+    return (Path(folder) / META).is_file()
+
+
+def read_session(folder: Path) -> Session:
+    """Read a session folder; a truncated last tick line is skipped with a warning.
+
+    Raises:
+        InputError: the folder is missing, is not a session, is of an unknown schema, or a
+            line before the last is corrupt (one line, naming the file and line).
+    """
+    folder = Path(folder)
+    meta_path = folder / META
+    if not folder.is_dir():
+        raise InputError(f"session not found: {folder}")
+    if not meta_path.is_file():
+        raise InputError(f"{folder} is not a dsteleop session (no {META})")
+    try:
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{meta_path}: unreadable metadata ({exc})") from exc
+    if not isinstance(meta, dict) or meta.get("schema") not in READABLE:
+        schema = meta.get("schema") if isinstance(meta, dict) else None
+        raise InputError(
+            f"{meta_path}: a session of schema {schema!r}, which this version cannot read "
+            f"(it reads {', '.join(READABLE)}; {SCHEMA} is the current one)"
+        )
+    dims = tuple(str(d) for d in meta.get("dims", ()))
+    records: list[TickRecord] = []
+    truncated = False
+    for lineno, line, last in _read_lines(folder / TICKS):
+        try:
+            raw = json.loads(line)
+            if not isinstance(raw, dict):
+                raise ValueError("not an object")
+        except ValueError as exc:
+            if last:
+                log.warning(
+                    "%s: skipping a truncated last record (line %d)", folder / TICKS, lineno
+                )
+                truncated = True
+                break
+            raise InputError(f"{folder / TICKS}:{lineno}: corrupt record ({exc})") from exc
+        try:
+            records.append(decode(raw, dims))
+        except InputError as exc:
+            raise InputError(f"{folder / TICKS}:{lineno}: {exc}") from None
+    return Session(folder, meta, tuple(records), truncated)
+
+
+def _read_lines(path: Path) -> Iterator[tuple[int, str, bool]]:
+    """(line number, text, is_last) of the non-empty lines; a missing file has none."""
+    if not path.is_file():
+        return
+    try:
+        text = path.read_bytes().decode("utf-8", errors="replace")
+    except OSError as exc:
+        raise InputError(f"{path}: unreadable ({exc.strerror})") from exc
+    numbered = [(i + 1, ln) for i, ln in enumerate(text.split("\n")) if ln.strip()]
+    for k, (lineno, ln) in enumerate(numbered):
+        yield lineno, ln, k == len(numbered) - 1

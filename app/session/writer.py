@@ -1,0 +1,195 @@
+"""Crash-safe session recording (the format: `recordings/README.md`).
+
+A session is a folder:
+
+    meta.json      written atomically (temp file + rename) at start, rewritten at close with
+                   the end time and outcome; schema version, dsteleop version, full config
+    ticks.jsonl    one JSON object per control tick (`schema.encode`), appended and flushed
+    video.mp4      optional: the camera frames (`video.FrameRecorder`)
+
+A process killed mid-session (even kill -9) leaves `meta.json` from the start and every tick
+line that reached the file; the reader skips a truncated last line with a warning. The
+`Recorder` writes on its own thread, so a slow disk never stalls the loop, and loses nothing:
+its queue holds every record until it is written.
+
+The operator's previous attempts (eq 6, last term) persist beside the sessions as
+`operator_history.json` in the recording root (`HistoryFile`).
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+import logging
+import math
+import os
+import queue
+import tempfile
+import threading
+from pathlib import Path
+from typing import IO, Any
+
+from dsteleop import __version__
+from dsteleop.app.session.schema import SCHEMA, TickRecord, encode
+from dsteleop.arbitration import OperatorHistory
+from dsteleop.errors import InputError
+
+log = logging.getLogger(__name__)
+
+META = "meta.json"
+TICKS = "ticks.jsonl"
+HISTORY_FILE = "operator_history.json"
+
+
+def write_json_atomic(path: Path, data: Any) -> None:
+    """Write JSON to `path` so that readers see the old or the new file, never half of one."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    try:
+        os.chmod(tmp, 0o644)
+        with os.fdopen(fd, "w") as f:
+            json.dump(clean(data), f, indent=2, sort_keys=True, allow_nan=False)
+            f.write("\n")
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def clean(value: Any) -> Any:
+    """JSON-safe: NaN/inf become null (JSON has neither); numpy values become Python ones."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {str(k): clean(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [clean(v) for v in value]
+    tolist = getattr(value, "tolist", None)
+    if tolist is not None:
+        return clean(tolist())
+    return value
+
+
+def new_session_folder(root: Path, mode: str, utensil: str) -> Path:
+    """A new folder under `root` named `<date>-<time>-<mode>-<utensil>` (unique)."""
+    stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
+    folder = root / f"{stamp}-{mode}-{utensil}"
+    k = 1
+    while folder.exists():
+        k += 1
+        folder = root / f"{stamp}-{mode}-{utensil}-{k}"
+    return folder
+
+
+class SessionWriter:
+    """Writes one session folder; every tick line is flushed to the OS as it is written.
+
+    Args:
+        folder: the session folder (created; must not already hold a session).
+        meta: metadata (config, mode, goals, mapping, source, ...); schema, version and start
+            time are added.
+        fsync_every: also fsync the tick file every N ticks (0: only at close). Flushing
+            already survives a killed process; fsync guards against a power cut.
+
+    Raises:
+        InputError: the folder holds a session already, or cannot be written.
+    """
+
+    def __init__(self, folder: Path, meta: dict[str, Any], fsync_every: int = 30) -> None:
+        self.folder = Path(folder)
+        if (self.folder / META).exists():
+            raise InputError(f"{self.folder} already holds a session; choose another folder")
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            self.meta = {"schema": SCHEMA, "dsteleop_version": __version__, **clean(meta)}
+            write_json_atomic(self.folder / META, self.meta)
+            self._ticks: IO[str] | None = open(self.folder / TICKS, "a", encoding="utf-8")  # noqa: SIM115
+        except OSError as exc:
+            raise InputError(f"cannot write a session in {self.folder}: {exc.strerror}") from exc
+        self._fsync_every = fsync_every
+        self.n_ticks = 0
+
+    def write_tick(self, record: dict[str, Any]) -> None:
+        """Append one tick record (a JSON object on one line) and flush it."""
+        if self._ticks is None:
+            raise RuntimeError("session is closed")
+        line = json.dumps(clean(record), separators=(",", ":"), allow_nan=False)
+        self._ticks.write(line + "\n")
+        self._ticks.flush()
+        self.n_ticks += 1
+        if self._fsync_every and self.n_ticks % self._fsync_every == 0:
+            os.fsync(self._ticks.fileno())
+
+    def close(self, extra_meta: dict[str, Any] | None = None) -> None:
+        """Flush, fsync and close the tick log; rewrite meta.json with `extra_meta` added."""
+        if self._ticks is None:
+            return
+        self._ticks.flush()
+        os.fsync(self._ticks.fileno())
+        self._ticks.close()
+        self._ticks = None
+        self.meta = {
+            **self.meta,
+            **clean(extra_meta or {}),
+            "n_ticks": self.n_ticks,
+            "complete": True,
+        }
+        write_json_atomic(self.folder / META, self.meta)
+
+    def __enter__(self) -> SessionWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class Recorder:
+    """Encodes and writes tick records on its own thread (module docstring)."""
+
+    def __init__(self, writer: SessionWriter) -> None:
+        self.writer = writer
+        self._q: queue.SimpleQueue[TickRecord | None] = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._run, name="dsteleop-recorder", daemon=True)
+        self._thread.start()
+
+    @property
+    def folder(self) -> Path:
+        return self.writer.folder
+
+    def put(self, record: TickRecord) -> None:
+        self._q.put(record)
+
+    def _run(self) -> None:
+        while (rec := self._q.get()) is not None:
+            self.writer.write_tick(encode(rec))
+
+    def close(self, extra_meta: dict[str, Any]) -> None:
+        """Write what is queued, then close the session with `extra_meta`."""
+        self._q.put(None)
+        self._thread.join()
+        self.writer.close(extra_meta)
+
+
+class HistoryFile:
+    """The operator history kept in `<folder>/operator_history.json`."""
+
+    def __init__(self, folder: Path) -> None:
+        self.path = Path(folder) / HISTORY_FILE
+
+    def load(self) -> OperatorHistory:
+        """The saved history (empty when there is none).
+
+        Raises:
+            InputError: the file exists but cannot be read.
+        """
+        if not self.path.is_file():
+            return OperatorHistory()
+        try:
+            return OperatorHistory.from_dict(json.loads(self.path.read_text()))
+        except (OSError, ValueError, KeyError) as exc:
+            raise InputError(f"{self.path}: unreadable operator history ({exc})") from exc
+
+    def save(self, history: OperatorHistory) -> None:
+        write_json_atomic(self.path, history.to_dict())

@@ -1,0 +1,153 @@
+"""The study's written outputs: the JSON line on stdout and summary.md."""
+
+from __future__ import annotations
+
+import itertools
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+
+def brief(
+    summary: dict[str, Any], out: Path, files: Sequence[str], elapsed_s: float, workers: int
+) -> dict[str, Any]:
+    """The JSON object printed on stdout: where the files are and the headline numbers."""
+    modes = {
+        name: {
+            "success_rate": m["success_rate"]["estimate"],
+            "time_s": m["time_s"]["geometric_mean"],
+            "cosine_distance": m["cosine_distance"]["mean"],
+            "agreement": m["agreement"]["mean"],
+        }
+        for name, m in summary["modes"].items()
+    }
+    tests = summary["tests"].get("S_vs_DS")
+    p = None
+    if tests:
+        p = {
+            "success": tests["success_n1_chi2"]["p_value"],
+            "log_time": tests["log_time"]["two_sample_t"]["p_value"],
+            "cosine_distance": tests["cosine_distance"]["two_sample_t"]["p_value"],
+            "agreement": tests["agreement"]["two_sample_t"]["p_value"],
+        }
+    return {
+        "out": str(out),
+        "files": list(files),
+        "operator": summary["operator"]["kind"],
+        "trajectories": summary["trajectories"],
+        "seed": summary["seed"],
+        "modes": modes,
+        "p_S_vs_DS": p,
+        "workers": workers,
+        "elapsed_s": round(elapsed_s, 3),
+    }
+
+
+def markdown(summary: dict[str, Any]) -> str:
+    """summary.md: the paper's Table I shape, then the tests and divergences."""
+    tests = summary["tests"].get("S_vs_DS")
+    # Bold marks the better of S and DS where the difference is significant (p < 0.05), as
+    # in the paper's Table I.
+    better: dict[str, str | None] = {}
+    if tests:
+
+        def pick(key: str, p: float, s_val: float, ds_val: float, lower: bool) -> None:
+            if p < 0.05:
+                better[key] = (
+                    ("S" if s_val < ds_val else "DS")
+                    if lower
+                    else ("S" if s_val > ds_val else "DS")
+                )
+
+        m = summary["modes"]
+        for key, test, metric, stat, lower in (
+            ("success", tests["success_n1_chi2"], "success_rate", "estimate", False),
+            ("time", tests["log_time"]["two_sample_t"], "time_s", "geometric_mean", True),
+            ("cos", tests["cosine_distance"]["two_sample_t"], "cosine_distance", "mean", True),
+            ("agree", tests["agreement"]["two_sample_t"], "agreement", "mean", False),
+        ):
+            pick(key, test["p_value"], m["S"][metric][stat], m["DS"][metric][stat], lower)
+
+    def cell(
+        key: str, mode: str, est: float | None, ci: Sequence[float | None], digits: int
+    ) -> str:
+        if est is None:
+            return "n/a"
+        lo, hi = ci
+        text = f"{est:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
+        return f"**{text}**" if better.get(key) == mode else text
+
+    lines = [
+        f"# Simulation study: {summary['trajectories']} trajectories, seed {summary['seed']}, "
+        f"operator `{summary['operator']['kind']}`",
+        "",
+        "Means and 95 % confidence intervals (success: Laplace estimate, adjusted-Wald; time: "
+        "geometric mean; cosine distance and agreement: mean of the per-trajectory values, t "
+        "interval). Bold: better of S and DS with p < 0.05.",
+        "",
+        "| Mode | Success Rate | Trial Time (s) | Cosine Distance | Ratio of Agreement |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    for name, m in summary["modes"].items():
+        lines.append(
+            f"| {name} | "
+            + " | ".join(
+                [
+                    cell(
+                        "success", name, m["success_rate"]["estimate"], m["success_rate"]["ci95"], 3
+                    ),
+                    cell("time", name, m["time_s"]["geometric_mean"], m["time_s"]["ci95"], 2),
+                    cell(
+                        "cos", name, m["cosine_distance"]["mean"], m["cosine_distance"]["ci95"], 3
+                    ),
+                    cell("agree", name, m["agreement"]["mean"], m["agreement"]["ci95"], 3),
+                ]
+            )
+            + " |"
+        )
+    if tests:
+        lines += [
+            "",
+            "## S vs DS (same trajectories)",
+            "",
+            "| Metric | Test | Statistic | p |",
+            "| --- | --- | --- | --- |",
+            "| success | N-1 chi-squared | "
+            f"{tests['success_n1_chi2']['chi2']:.3f} | {_p(tests['success_n1_chi2']['p_value'])} |",
+        ]
+        for key, label in (
+            ("log_time", "log time"),
+            ("cosine_distance", "cosine distance"),
+            ("agreement", "agreement"),
+        ):
+            for test, tlabel in (("two_sample_t", "two-sample t"), ("paired_t", "paired t")):
+                r = tests[key][test]
+                lines.append(f"| {label} | {tlabel} | {r['t']:.3f} | {_p(r['p_value'])} |")
+    lines += ["", "## Cosine distance and agreement by phase of the trial (deciles)", ""]
+    edges = next(iter(summary["modes"].values()))["by_phase"]["edges"]
+    head = " | ".join(f"{a:.1f}-{b:.1f}" for a, b in itertools.pairwise(edges))
+    lines += [f"| Mode | Metric | {head} |", "| --- | --- |" + " --- |" * (len(edges) - 1)]
+    for name, m in summary["modes"].items():
+        for key, label in (("cosine_distance", "cosine"), ("agreement", "agreement")):
+            vals = " | ".join("n/a" if v is None else f"{v:.3f}" for v in m["by_phase"][key])
+            lines.append(f"| {name} | {label} | {vals} |")
+    lines += ["", "## Jensen-Shannon divergence of (x, y, heading) histograms (base 2)", ""]
+    lines += ["| Pair | JSD |", "| --- | --- |"]
+    lines += [f"| {k} | {v:.4f} |" for k, v in summary["divergence"].items()]
+    c = summary["config"]
+    lines += [
+        "",
+        "## Configuration",
+        "",
+        f"- handle at {c['handle_xy_m']} m, normal {c['handle_normal_rad']:.4f} rad; success R = "
+        f"{c['success_radius_m']} m, delta = {c['success_heading_rad']} rad",
+        f"- robot goal noise sigma = {c['goal_sigma_m']} m; dt = {c['dt_s']:.5f} s",
+        f"- arbitration: {json.dumps(c['arbitration'], sort_keys=True)}",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def _p(p: float) -> str:
+    return f"{p:.3g}" if p >= 1e-300 else "< 1e-300"

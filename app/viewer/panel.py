@@ -1,0 +1,272 @@
+"""The 2-D part of the browser view: gauges, status, the alpha plot and the camera image.
+
+Pure functions from a `TickRecord` to what viser shows (HTML strings, arrays, an RGB image),
+so they are tested without a server. The stylesheet and the HTML templates are files in
+`web_assets/` (installed as `dsteleop.web_assets`). Colour code, everywhere: the operator is
+blue, the robot orange. Each dimension's gauge is a bar whose orange share is alpha (the
+robot's authority) and whose blue share is 1 - alpha (the operator's); ticks on the bar mark
+P(H) (blue), P(R) (orange) and B (black), and the numbers follow. Every gauge row carries its
+values as `data-*` attributes (`data-dim`, `data-alpha`, `data-ph`, `data-pr`, `data-b`) so
+that a test, or an operator's own tooling, can read them from the page.
+"""
+
+from __future__ import annotations
+
+import functools
+import html
+import importlib
+import math
+from collections.abc import Mapping, Sequence
+from importlib import resources
+from string import Template
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dsteleop.app.ports import HumanInput
+from dsteleop.app.session.schema import Status, TickRecord
+from dsteleop.arbitration import ArbitrationStep
+
+Array = NDArray[np.float64]
+Image = NDArray[np.uint8]
+
+STATUS_HEX = {Status.TRACKING: "#1f9d55", Status.ASSIST: "#1f9d55", Status.LOST: "#c0392b"}
+# One colour per dimension in the plot: translation, rotation, fingers.
+DIM_COLOURS: tuple[str, ...] = (
+    "#d62728", "#2ca02c", "#1f77b4",  # x y z
+    "#ff7f0e", "#9467bd", "#8c564b",  # roll pitch yaw
+    "#e377c2", "#7f7f7f", "#bcbd22", "#17becf", "#393b79", "#637939",  # fingers
+)  # fmt: skip
+CAMERA_WIDTH_PX = 320
+# MediaPipe Hands' 21-landmark skeleton (wrist 0; thumb 1-4; index 5-8; ...; little 17-20).
+HAND_CONNECTIONS: tuple[tuple[int, int], ...] = (
+    (0, 1), (1, 2), (2, 3), (3, 4), (0, 5), (5, 6), (6, 7), (7, 8), (5, 9), (9, 10),
+    (10, 11), (11, 12), (9, 13), (13, 14), (14, 15), (15, 16), (13, 17), (0, 17), (17, 18),
+    (18, 19), (19, 20),
+)  # fmt: skip
+
+
+@functools.lru_cache(maxsize=16)
+def asset(name: str) -> str:
+    """A file of web_assets/ (the installed package data), as text."""
+    return resources.files("dsteleop.web_assets").joinpath(name).read_text(encoding="utf-8")
+
+
+def style_html() -> str:
+    """The stylesheet as an HTML block (sent once; the updates then carry class names)."""
+    return f"<style>{asset('dsteleop.css')}</style>"
+
+
+def _template(name: str) -> Template:
+    return Template(asset(name).strip())
+
+
+def _pct(v: float) -> str:
+    return f"{100.0 * float(np.clip(v, 0.0, 1.0)):.1f}%"
+
+
+def _num(v: float) -> str:
+    return "nan" if not math.isfinite(float(v)) else f"{float(v):.3f}"
+
+
+def _two(v: float) -> str:
+    return "nan" if not math.isfinite(float(v)) else f"{float(v):.2f}"
+
+
+def gauge_row(dim: str, alpha: float, p_h: float, p_r: float, b: float) -> str:
+    """One dimension's gauge: alpha bar with P(H), P(R), B ticks, and the four numbers."""
+    a = float(alpha) if math.isfinite(float(alpha)) else 0.0
+    return _template("gauge_row.html").substitute(
+        dim=html.escape(dim),
+        alpha_attr=_num(alpha),
+        ph_attr=_num(p_h),
+        pr_attr=_num(p_r),
+        b_attr=_num(b),
+        who="robot" if a > 0.5 else "operator",
+        alpha=f"{a:.2f}",
+        alpha_pct=_pct(a),
+        ph_pct=_pct(p_h),
+        pr_pct=_pct(p_r),
+        b_pct=_pct(b),
+        ph=_two(p_h),
+        pr=_two(p_r),
+        b=_two(b),
+    )
+
+
+def gauges_html(record: TickRecord, step: ArbitrationStep | None) -> str:
+    """All per-dimension gauges of a tick (of `step`: the record's, or the last one shown
+    while the arbitration does not run; zeros before the first)."""
+    D = len(record.dims)
+    zeros = np.zeros(D)
+    a, h, r, b = (
+        (step.alpha, step.P_human, step.P_robot, step.B) if step is not None else (zeros,) * 4
+    )
+    rows = [
+        gauge_row(d, float(a[i]), float(h[i]), float(r[i]), float(b[i]))
+        for i, d in enumerate(record.dims)
+    ]
+    head = asset("gauges_head.html").strip()
+    return f'<div class="dst-gauges" data-tick="{int(record.k)}">{head}{"".join(rows)}</div>'
+
+
+def _timing_items(
+    timing: Mapping[str, float], rate_hz: float | None, jitter_max_ms: float | None
+) -> list[tuple[str, str]]:
+    out = []
+    if rate_hz is not None:
+        out.append(("loop", f"{rate_hz:.1f} Hz"))
+    elif timing.get("rate_hz") is not None:
+        out.append(("loop (set)", f"{timing['rate_hz']:.0f} Hz"))
+    if jitter_max_ms is not None:
+        out.append(("jitter max 1 s", f"{jitter_max_ms:.1f} ms"))
+    elif timing.get("jitter_ms") is not None:
+        out.append(("jitter", f"{timing['jitter_ms']:.1f} ms"))
+    if timing.get("tick_ms") is not None:
+        out.append(("tick", f"{timing['tick_ms']:.1f} ms"))
+    for key, label in (
+        ("capture_to_commanded_ms", "latency"),
+        ("capture_to_tracked_ms", "tracking"),
+    ):
+        v = timing.get(key)
+        if v is not None and math.isfinite(v):
+            out.append((label, f"{v:.0f} ms"))
+    if timing.get("overruns"):
+        out.append(("overruns", f"{int(timing['overruns'])}"))
+    return out
+
+
+def status_html(
+    record: TickRecord,
+    viewer: Mapping[str, Any] | None = None,
+    rate_hz: float | None = None,
+    jitter_max_ms: float | None = None,
+) -> str:
+    """Mode, tracking state and reason, timing, task phase and outcome, viewer counters.
+
+    Args:
+        record: the tick shown.
+        viewer: the view's own counters (tabs, skipped records).
+        rate_hz: the loop rate measured from recent ticks [Hz], if known.
+        jitter_max_ms: the largest start-time jitter of the last second's ticks [ms].
+    """
+    status = record.status
+    reason = f" &mdash; {html.escape(record.reason)}" if record.reason else ""
+    outcome = record.outcome
+    outcome_text = "" if outcome is None else ("success" if outcome.success else "failure")
+    out_col = {"success": "#1f9d55", "failure": "#c0392b"}.get(outcome_text, "#555")
+    items = [
+        ("mode", f"<b>{html.escape(record.mode.value)}</b>"),
+        ("phase", html.escape(record.phase.value)),
+    ]
+    if outcome_text:
+        items.append(("outcome", f'<b style="color:{out_col}">{outcome_text}</b>'))
+    items += _timing_items(record.timing, rate_hz, jitter_max_ms)
+    if viewer:
+        items += [(k, html.escape(str(v))) for k, v in viewer.items()]
+    cells = " ".join(
+        f'<span class="dst-item"><span class="dst-key">{k}</span> {v}</span>' for k, v in items
+    )
+    return _template("status.html").substitute(
+        status=html.escape(status.value),
+        mode=html.escape(record.mode.value),
+        phase=html.escape(record.phase.value),
+        outcome=outcome_text,
+        tick=int(record.k),
+        rate="" if rate_hz is None else f"{rate_hz:.2f}",
+        colour=STATUS_HEX.get(status, "#555"),
+        reason=reason,
+        items=cells,
+    )
+
+
+class AlphaHistory:
+    """A fixed window of alpha samples for the time-series plot.
+
+    Args:
+        dims: dimension names (one series each).
+        length: samples kept.
+    """
+
+    def __init__(self, dims: Sequence[str], length: int) -> None:
+        self.dims = tuple(dims)
+        self._t = np.full(length, np.nan)
+        self._a = np.full((len(self.dims), length), np.nan)
+        self._n = 0
+
+    def push(self, t_s: float, alpha: Array) -> None:
+        """Append one sample (the oldest falls out)."""
+        self._t = np.roll(self._t, -1)
+        self._a = np.roll(self._a, -1, axis=1)
+        self._t[-1] = t_s
+        self._a[:, -1] = np.asarray(alpha, dtype=np.float64)[: len(self.dims)]
+        self._n += 1
+
+    def data(self) -> tuple[Array, ...]:
+        """(t, alpha_0, ..., alpha_D-1) over the filled part of the window, t from 0 at the
+        oldest sample shown."""
+        k = min(self._n, self._t.size)
+        t = self._t[-k:] - (self._t[-k] if k else 0.0)
+        return (t, *(row[-k:] for row in self._a))
+
+
+def plot_series(dims: Sequence[str]) -> tuple[dict[str, Any], ...]:
+    """uPlot series for (t, alpha per dimension)."""
+    series: list[dict[str, Any]] = [{"label": "t [s]"}]
+    for k, d in enumerate(dims):
+        series.append(
+            {
+                "label": d,
+                "stroke": DIM_COLOURS[k % len(DIM_COLOURS)],
+                "width": 1.5,
+                "points": {"show": False},
+            }
+        )
+    return tuple(series)
+
+
+def _draw_landmarks(canvas: Image, landmarks: Array) -> None:
+    cv2: Any = importlib.import_module("cv2")
+    h, w = canvas.shape[:2]
+    if not np.isfinite(landmarks[:, :2]).all():
+        return
+    pts = np.round(np.asarray(landmarks)[:, :2] * (w, h)).astype(int)
+    for a, b in HAND_CONNECTIONS:
+        if a < len(pts) and b < len(pts):
+            cv2.line(
+                canvas,
+                tuple(int(v) for v in pts[a]),
+                tuple(int(v) for v in pts[b]),
+                (255, 255, 255),
+                2,
+                cv2.LINE_AA,
+            )
+    for p in pts:
+        cv2.circle(canvas, (int(p[0]), int(p[1])), 3, (255, 140, 0), -1, cv2.LINE_AA)
+
+
+def camera_image(hand: HumanInput | None, width_px: int = CAMERA_WIDTH_PX) -> Image | None:
+    """A small RGB image of the tracked hand: the camera frame (or a grey canvas for
+    sources without pixels, such as the demo operator) downscaled to `width_px`, with the
+    landmarks drawn. None when there is nothing to show."""
+    sample = None if hand is None else hand.sample
+    if sample is None:
+        return None
+    image, landmarks = sample.image, sample.landmarks_image
+    if image is None and landmarks is None:
+        return None
+    cv2: Any = importlib.import_module("cv2")
+    if image is not None:
+        src = np.asarray(image)
+        scale = width_px / src.shape[1]
+        small = cv2.resize(
+            src, (width_px, max(1, round(src.shape[0] * scale))), interpolation=cv2.INTER_AREA
+        )
+        canvas: Image = np.ascontiguousarray(small[:, :, ::-1])  # BGR -> RGB
+    else:
+        w, h = sample.width_px or 640, sample.height_px or 480
+        canvas = np.full((max(1, round(h * width_px / w)), width_px, 3), 60, dtype=np.uint8)
+    if sample.detected and landmarks is not None:
+        _draw_landmarks(canvas, np.asarray(landmarks, dtype=np.float64))
+    return canvas

@@ -1,0 +1,200 @@
+"""Fakes of the loop's ports, for testing the loop's own logic without PyBullet or a camera.
+
+`FakePlant` is a kinematic robot (it reaches each commanded state exactly, or with a
+first-order lag) with a two-segment task: the pick segment ends when the palm has been
+within `tolerance_m` of the pick goal for `hold_ticks` ticks, then the place goal is active
+and the task succeeds when the palm reaches it. `ScriptedHand` is the operator's hand from a
+path in the robot base frame, sampled like a 30 Hz camera, with the same re-anchoring
+semantics as the workspace mapping (a returning hand maps to where the loop asks).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dsteleop.app.ports import NO_HAND, HumanInput, PlantStep
+from dsteleop.arbitration import HandState, so3_exp
+from dsteleop.robot.scene import SceneGeometry
+from dsteleop.robot.task import EventKind, Outcome, Phase, TaskEvent
+
+Array = NDArray[np.float64]
+FINGERS = ("thumb", "index", "middle", "ring")
+DT = 1.0 / 30.0
+
+
+def state(
+    p: tuple[float, float, float], rv: tuple[float, float, float] = (0.0, 0.0, 0.0), g: float = 1.0
+) -> HandState:
+    return HandState(
+        np.array(p, dtype=np.float64), so3_exp(np.array(rv, dtype=np.float64)), np.full(4, g)
+    )
+
+
+class FakePlant:
+    """A kinematic robot and a pick-then-place task (module docstring).
+
+    Args:
+        start: the robot's state at every reset.
+        pick, place: the goals the robot knows.
+        tolerance_m: how close counts as at a goal [m].
+        hold_ticks: ticks at the pick goal before the place segment starts.
+        lag: 0 reaches each command exactly; otherwise X moves this fraction of the way.
+    """
+
+    finger_names: tuple[str, ...] = FINGERS
+
+    def __init__(
+        self,
+        start: HandState | None = None,
+        pick: HandState | None = None,
+        place: HandState | None = None,
+        tolerance_m: float = 0.01,
+        hold_ticks: int = 3,
+        lag: float = 0.0,
+    ) -> None:
+        self.start = start or state((0.5, 0.3, 0.4))
+        self.pick = pick or state((0.5, 0.1, 0.2), g=0.0)
+        self.place = place or state((0.5, -0.2, 0.4), g=1.0)
+        self.tolerance_m = tolerance_m
+        self.hold_ticks = hold_ticks
+        self.lag = lag
+        self.resets = 0
+        self.commands: list[HandState] = []
+        self.reset()
+
+    def reset(self, utensil: str | None = None) -> HandState:
+        self.X = self.start
+        self.phase = Phase.PICK
+        self.outcome: Outcome | None = None
+        self._held = 0
+        self.t_s = 0.0
+        self.resets += 1
+        return self.X
+
+    def goal(self) -> HandState | None:
+        if self.phase is Phase.DONE:
+            return None
+        return self.pick if self.phase is Phase.PICK else self.place
+
+    def apply(self, X_next: HandState) -> PlantStep:
+        self.commands.append(X_next)
+        if self.lag:
+            a = 1.0 - self.lag
+            self.X = HandState(
+                self.X.position + a * (X_next.position - self.X.position),
+                X_next.rotation,
+                X_next.openness,
+            )
+        else:
+            self.X = X_next
+        self.t_s += DT
+        events: list[TaskEvent] = []
+        goal = self.goal()
+        if goal is not None:
+            near = float(np.linalg.norm(self.X.position - goal.position)) < self.tolerance_m
+            if self.phase is Phase.PICK:
+                self._held = self._held + 1 if near else 0
+                if self._held >= self.hold_ticks:
+                    self.phase = Phase.PLACE
+                    events += [
+                        TaskEvent(EventKind.GRASP, self.t_s, "thing"),
+                        TaskEvent(EventKind.GOAL, self.t_s, "place"),
+                    ]
+            elif near:
+                self.phase = Phase.DONE
+                self.outcome = Outcome(True, "in_bin", self.t_s, "thing")
+                events.append(TaskEvent(EventKind.SUCCESS, self.t_s, "in_bin"))
+        return PlantStep(self.X, self.phase, tuple(events), self.outcome)
+
+    def set_goal_noise(self, sigma_m: float) -> None:
+        pass
+
+    def describe(self) -> dict[str, Any]:
+        return {"kind": "fake", "utensil": "thing"}
+
+    def scene(self) -> SceneGeometry | None:
+        return None
+
+    def close(self) -> None:
+        pass
+
+
+Path = Callable[[float], HandState | None]
+
+
+class ScriptedHand:
+    """The operator's hand from `path(t)` (robot base frame; None: not seen), sampled at
+    `fps` and captured at k / fps, like a camera (module docstring).
+
+    Args:
+        path: the hand's pose over time.
+        fps: samples per second.
+        input_delay_s: samples reach the loop this much later than captured.
+        corrupt: rewrites a mapped sample before the loop sees it (NaN, a stalled camera).
+    """
+
+    def __init__(
+        self,
+        path: Path,
+        fps: float = 30.0,
+        input_delay_s: float = 0.0,
+        corrupt: Callable[[HumanInput], HumanInput] | None = None,
+    ) -> None:
+        self.path = path
+        self.fps = fps
+        self.input_delay_s = input_delay_s
+        self.corrupt = corrupt
+        self._offset_p = np.zeros(3)
+        self._offset_R = np.eye(3)
+        self._raw: dict[int, HandState] = {}
+        self.calibrations = 0
+        self.closed = False
+
+    def _map(self, raw: HandState) -> HandState:
+        return HandState(
+            self._offset_R @ raw.position + self._offset_p,
+            self._offset_R @ raw.rotation,
+            raw.openness,
+        )
+
+    def poll(self, now_s: float) -> HumanInput | None:
+        k = math.floor((now_s - self.input_delay_s) * self.fps + 1e-9)
+        if k < 0:
+            return None
+        t = k / self.fps
+        raw = self.path(t)
+        if raw is None:
+            inp = HumanInput(k, t, t, None, NO_HAND)
+        else:
+            self._raw[k] = raw
+            inp = HumanInput(k, t, t, self._map(raw))
+        return self.corrupt(inp) if self.corrupt is not None else inp
+
+    def reanchor(self, inp: HumanInput, X_target: HandState) -> HumanInput:
+        raw = self._raw.get(inp.seq)
+        if raw is None or inp.X_human is None:
+            return inp
+        self._offset_R = X_target.rotation @ raw.rotation.T
+        self._offset_p = X_target.position - self._offset_R @ raw.position
+        return HumanInput(inp.seq, inp.t_capture_s, inp.t_tracked_s, self._map(raw))
+
+    def calibrate(self) -> None:
+        self.calibrations += 1
+
+    @property
+    def finished(self) -> bool:
+        return False
+
+    def describe(self) -> str:
+        return "scripted hand"
+
+    def mapping_config(self) -> dict[str, Any]:
+        return {}
+
+    def close(self) -> None:
+        self.closed = True
