@@ -28,6 +28,7 @@ from dsteleop.arbitration.arbiters import (
     ArbitrationStep,
     FilterState,
     Mode,
+    RowModes,
     make_arbiter,
 )
 from dsteleop.arbitration.config import ArbitrationConfig, InvalidConfig
@@ -54,6 +55,7 @@ __all__ = [
     "InvalidConfig",
     "Mode",
     "OperatorHistory",
+    "RowModes",
     "diff",
     "dim_names",
     "integrate",

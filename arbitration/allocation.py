@@ -8,21 +8,26 @@ same in either layout.)
 
 Standard controller (S), eq (3), one alpha for every dimension from position only:
 
-    alpha = 1 - erf(|p_goal - p_cur|_1 / max(|p_goal - p_start|_1, eps))
+    alpha = 1 - erf(|p_goal - p_cur|_1 / max(|p_goal - p_start|_1, floor))
 
 Expected control allocation of agent A in {H: X_human, R: X_current}, eq (4) and (5):
 
-    translation, fingers:  P(A_i) = 1 - erf(|goal_i - agent_i| / max(|goal_i - start_i|, eps_i))
+    translation, fingers:  P(A_i) = 1 - erf(|goal_i - agent_i| / max(|goal_i - start_i|, floor_i))
     rotation:              P(A_i) = exp(kappa * (cos(e_i) - 1)),  e = log(R_goal R_agent^T)
 
 (the von Mises density of eq (5) divided by its peak, so P is in (0, 1] and 1 at the goal).
+The floor is a task-scale length (`alloc_floor_m`, 2 cm; `alloc_floor_openness`), so that in
+a dimension whose goal equals its start P stays a smooth function of the distance.
 
 Expected speed change, eq (6), per agent and dimension, unitless:
 
     psi_i = U_i / vmax_i - u(cur, prev)_i - u(cur, start)_i + mean_n u(terminal_n, start_n)_i
 
 with u(a, b) = diff(a, b) / |diff(a, b)|_2 over the dimension's group (translation, rotation,
-fingers) and 0 when that norm is below the group's eps. The states are the agent's own: the
+fingers) and 0 when that norm is below the group's threshold: for u(cur, prev), a difference
+one tick apart, the threshold is a speed times dt (`still_*_per_s` / `still_speed_mps` /
+`still_rate_radps`); for u(cur, start) and the previous attempts, a distance
+(`still_distance_m`, `still_angle_rad`, `still_openness`). The states are the agent's own: the
 hand's poses for psi_human, the robot's for psi_robot.
 
 Willingness, eq (7): the beta-prime density with shapes p, q and scale
@@ -54,42 +59,42 @@ def _col(v: Array, like: Array) -> Array:
     return v.reshape(v.shape + (1,) * (like.ndim - 1))
 
 
-def standard_alpha(p_goal: Array, p_cur: Array, p_start: Array, eps_m: float) -> Array:
+def standard_alpha(p_goal: Array, p_cur: Array, p_start: Array, floor_m: float) -> Array:
     """Eq (3): one alpha per state from the L1 position distances, (3, ...) -> (...)."""
     num = np.abs(p_goal - p_cur).sum(0)
-    den = np.maximum(np.abs(p_goal - p_start).sum(0), eps_m)
+    den = np.maximum(np.abs(p_goal - p_start).sum(0), floor_m)
     return np.asarray(erfc(num / den))
 
 
 def expected_allocation(
-    d_goal_agent: Array, d_goal_start: Array, eps: Array, kappa: float
+    d_goal_agent: Array, d_goal_start: Array, floor: Array, kappa: float
 ) -> Array:
     """Eq (4)/(5): P(A_i) for every dimension, (6 + F, ...).
 
     Args:
         d_goal_agent: diff(X_goal, X_agent), (6 + F, ...).
         d_goal_start: diff(X_goal, X_start), broadcastable to it; rotation entries unused.
-        eps: (6 + F,) floors of the denominators.
+        floor: (6 + F,) floors of the denominators (rotation entries unused).
         kappa: von Mises concentration.
     """
     P = np.empty(np.broadcast_shapes(d_goal_agent.shape, d_goal_start.shape))
     for g in (TRANS, FING):
-        den = np.maximum(np.abs(d_goal_start[g]), _col(eps[g], d_goal_start))
+        den = np.maximum(np.abs(d_goal_start[g]), _col(floor[g], d_goal_start))
         P[g] = erfc(np.abs(d_goal_agent[g]) / den)
     P[ROT] = np.exp(kappa * (np.cos(d_goal_agent[ROT]) - 1.0))
     return P
 
 
-def unit_directions(d: Array, eps: Array) -> Array:
+def unit_directions(d: Array, threshold: Array) -> Array:
     """u(a, b) of eq (6) from d = diff(a, b) (6 + F, ...): each group over its norm, 0 below
-    the group's eps."""
+    the group's threshold (`threshold[group start]`)."""
     out = np.zeros_like(d)
     for g in (TRANS, ROT, FING):
         dg = d[g]
         if dg.shape[0] == 0:
             continue
         n = norms_rows(dg)
-        ok = n >= eps[g.start]
+        ok = n >= threshold[g.start]
         out[g] = np.where(ok, dg / np.where(ok, n, 1.0), 0.0)
     return out
 
@@ -100,11 +105,20 @@ def expected_speed_change(
     d_cur_prev: Array,
     d_cur_start: Array,
     history_term: Array | None,
-    eps: Array,
+    still_step: Array,
+    still_offset: Array,
 ) -> Array:
-    """Eq (6): psi, (6 + F, ...), for one agent or for several along a batch axis."""
-    psi = U / _col(v_max, U) - unit_directions(d_cur_prev, eps)
-    psi -= unit_directions(d_cur_start, eps)
+    """Eq (6): psi, (6 + F, ...), for one agent or for several along a batch axis.
+
+    Args:
+        U: the agent's action; v_max: (6 + F,) the velocity limits.
+        d_cur_prev, d_cur_start: the agent's differences to its previous and start states.
+        history_term: (6 + F,) the previous attempts' mean direction, or None.
+        still_step: (6 + F,) thresholds of the one-tick difference (speed times dt).
+        still_offset: (6 + F,) thresholds of the difference from the start.
+    """
+    psi = U / _col(v_max, U) - unit_directions(d_cur_prev, still_step)
+    psi -= unit_directions(d_cur_start, still_offset)
     if history_term is not None:
         psi += _col(np.asarray(history_term, dtype=np.float64), U)
     return psi

@@ -164,6 +164,33 @@ class FilterState:
         )
 
 
+#: The modes in the order of `RowModes.codes`.
+MODES: tuple[Mode, ...] = tuple(Mode)
+
+
+@dataclass(frozen=True)
+class RowModes:
+    """The mode of every row of a batch that mixes modes (flattened batch order).
+
+    Attributes:
+        codes: (M,) index of each row's mode in `MODES`.
+    """
+
+    codes: NDArray[np.int8]
+
+    @classmethod
+    def of(cls, modes: list[Mode] | tuple[Mode, ...]) -> RowModes:
+        return cls(np.array([MODES.index(m) for m in modes], dtype=np.int8))
+
+    def groups(self) -> list[tuple[Mode, NDArray[np.bool_]]]:
+        """(mode, mask of its rows) for each mode present."""
+        return [(m, self.codes == i) for i, m in enumerate(MODES) if (self.codes == i).any()]
+
+    def select(self, keep: NDArray[np.bool_]) -> RowModes:
+        """The modes of the rows `keep`."""
+        return RowModes(self.codes[keep])
+
+
 @dataclass(frozen=True)
 class Arbiter:
     """One mode's arbitration: `state, step = arbiter.step(state, inp)`.
@@ -181,9 +208,15 @@ class Arbiter:
         return FilterState.initial(self.config.window, dims, batch)
 
     def step(
-        self, state: FilterState, inp: ArbitrationInput
+        self, state: FilterState, inp: ArbitrationInput, rows: RowModes | None = None
     ) -> tuple[FilterState, ArbitrationStep]:
         """One tick (module docstring); the filter state changes in DS mode only.
+
+        Args:
+            state: the filter state (`initial_state`) for the tick's batch.
+            inp: the tick's states.
+            rows: a mode per batch row (a batch that mixes modes, as the simulation study
+                steps every mode of a trajectory at once); None: every row in `mode`.
 
         Raises:
             ConfigError: the filter state was made for another batch shape or dimension count.
@@ -203,7 +236,7 @@ class Arbiter:
                 f"tick of batch {batch} and {D} dims"
             )
         M = math.prod(batch)
-        v_max, eps = cfg.v_max(F), cfg.eps(F)
+        v_max = cfg.v_max(F)
         # Every difference of the tick in one pass over 6M pairs, laid out in the rows as
         #   left   [goal  | goal  | human      | robot  | human       | robot  ]
         #   right  [human | robot | human_prev | prev   | human_start | start  ]
@@ -225,19 +258,42 @@ class Arbiter:
         d_goal_start = np.zeros((D, 1, M))
         d_goal_start[TRANS, 0] = G.p - Cs.p
         d_goal_start[FING, 0] = G.g - Cs.g
-        P = allocation.expected_allocation(d_goal, d_goal_start, eps, cfg.kappa)
+        P = allocation.expected_allocation(d_goal, d_goal_start, cfg.alloc_floor(F), cfg.kappa)
         U = np.stack((U_h, U_r), 1)
-        psi = allocation.expected_speed_change(U, v_max, d_prev, d_start, inp.history_term, eps)
+        psi = allocation.expected_speed_change(
+            U, v_max, d_prev, d_start, inp.history_term, cfg.still_step(F, inp.dt),
+            cfg.still_offset(F),
+        )  # fmt: skip
         psi_h, psi_r = psi[:, 0], psi[:, 1]
         B = allocation.willingness(psi_h, psi_r, cfg.p, cfg.q, cfg.b, cfg.psi_robot_floor)
         P_h, P_r = P[:, 0], P[:, 1]
-        if self.mode is Mode.DS:
-            state, alpha, B = state.push(B, lambda B_f: allocation.ds_alpha(P_r, P_h, B_f))
-        elif self.mode is Mode.S:
-            a = allocation.standard_alpha(G.p, C.p, Cs.p, cfg.eps_trans_m)
-            alpha = np.broadcast_to(a, (D, M))
+
+        def ds(B: Array) -> tuple[FilterState, Array, Array]:
+            return state.push(B, lambda B_f: allocation.ds_alpha(P_r, P_h, B_f))
+
+        def standard() -> Array:
+            a = allocation.standard_alpha(G.p, C.p, Cs.p, cfg.alloc_floor_m)
+            return np.broadcast_to(a, (D, M))
+
+        if rows is None:
+            if self.mode is Mode.DS:
+                state, alpha, B = ds(B)
+            elif self.mode is Mode.S:
+                alpha = standard()
+            else:
+                alpha = np.full((D, M), 1.0 if self.mode is Mode.AUTONOMOUS else 0.0)
         else:
-            alpha = np.full((D, M), 1.0 if self.mode is Mode.AUTONOMOUS else 0.0)
+            if rows.codes.shape != (M,):
+                raise ConfigError(f"modes for {rows.codes.shape} rows, tick of batch {batch}")
+            alpha = np.empty((D, M))
+            for mode, where in rows.groups():
+                if mode is Mode.DS:
+                    state, a_ds, B_ds = ds(B)
+                    alpha[:, where], B = a_ds[:, where], np.where(where, B_ds, B)
+                elif mode is Mode.S:
+                    alpha[:, where] = standard()[:, where]
+                else:
+                    alpha[:, where] = 1.0 if mode is Mode.AUTONOMOUS else 0.0
         U_out = alpha * U_r + (1.0 - alpha) * U_h
         X_ref = C if inp.X_ref is None else StateRows.of(inp.X_ref, batch=batch)
         X_next = policy.advance_rows(X_ref, C, U_out, inp.dt, cfg)

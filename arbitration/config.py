@@ -10,7 +10,15 @@ Defaults (and why):
     gains             K_r of the goal-seeking policy U_robot = sat(K_r * diff(goal, current)).
     limits            velocity saturation: translation by norm [m/s], rotation by norm [rad/s],
                       each finger alone [1/s].
-    eps               floors of the eq (3)/(4) denominators and of the unit directions of eq (6).
+    alloc_floor_*     eq (3)/(4)'s denominator floor: where |goal_i - start_i| is tiny (a
+                      dimension the task does not move), P stays a smooth function of the
+                      distance on the task's own scale, 2 cm (about the success tolerances,
+                      1-3 cm) and 0.1 of openness, instead of a step at a millimetre.
+    still_*           eq (6)'s unit directions are 0 below these: u(cur, prev), a one-tick
+                      difference, is gated by a speed (5 mm/s, 0.05 rad/s, 0.05 openness/s)
+                      and u(cur, start) by a distance (5 mm, 0.05 rad, 0.02): the scale of a
+                      hand's drift and tremor while it holds still (docs/METHOD.md §4 says how
+                      they were chosen and what a camera's noise floor does to them).
     psi_robot_floor   the |psi_robot| ~ 0 rule of eq (7): the beta-prime reference is
                       max(|psi_robot|, psi_robot_floor) (0.25: a quarter of a unit direction,
                       the scale of psi), so B stays finite, and an operator who is not changing
@@ -35,6 +43,10 @@ from numpy.typing import NDArray
 
 from dsteleop.errors import ConfigError
 
+#: Fields of earlier versions, read from old sessions and dropped: eq (4)'s floor and eq (6)'s
+#: direction threshold were one `eps`, 1e-3 (docs/METHOD.md says why they are apart now).
+RETIRED = frozenset({"eps_trans_m", "eps_rot_rad", "eps_finger"})
+
 #: A hyper-parameter out of its domain (the project's `ConfigError`; the message names it).
 InvalidConfig = ConfigError
 
@@ -54,9 +66,14 @@ class ArbitrationConfig:
     v_max_mps: float = 0.25
     w_max_radps: float = 1.0
     g_max_per_s: float = 4.0
-    eps_trans_m: float = 1e-3
-    eps_rot_rad: float = 1e-3
-    eps_finger: float = 1e-3
+    alloc_floor_m: float = 0.02
+    alloc_floor_openness: float = 0.1
+    still_speed_mps: float = 0.005
+    still_rate_radps: float = 0.05
+    still_openness_per_s: float = 0.05
+    still_distance_m: float = 0.005
+    still_angle_rad: float = 0.05
+    still_openness: float = 0.02
     psi_robot_floor: float = 0.25
     max_lead_m: float = 0.03
     max_lead_rad: float = 0.25
@@ -85,6 +102,7 @@ class ArbitrationConfig:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> ArbitrationConfig:
         names = {f.name for f in dataclasses.fields(cls)}
+        data = {k: v for k, v in data.items() if k not in RETIRED}
         unknown = sorted(set(data) - names)
         if unknown:
             known = ", ".join(sorted(names))
@@ -114,8 +132,18 @@ class ArbitrationConfig:
     def v_max(self, n_fingers: int) -> NDArray[np.float64]:
         return _per_dim(self.v_max_mps, self.w_max_radps, self.g_max_per_s, n_fingers)
 
-    def eps(self, n_fingers: int) -> NDArray[np.float64]:
-        return _per_dim(self.eps_trans_m, self.eps_rot_rad, self.eps_finger, n_fingers)
+    def alloc_floor(self, n_fingers: int) -> NDArray[np.float64]:
+        """Eq (3)/(4)'s denominator floors (the rotation entries are not used)."""
+        return _per_dim(self.alloc_floor_m, math.pi, self.alloc_floor_openness, n_fingers)
+
+    def still_step(self, n_fingers: int, dt: float) -> NDArray[np.float64]:
+        """Eq (6): the smallest one-tick difference (over dt [s]) that has a direction."""
+        speeds = (self.still_speed_mps, self.still_rate_radps, self.still_openness_per_s)
+        return _per_dim(*(v * dt for v in speeds), n_fingers)
+
+    def still_offset(self, n_fingers: int) -> NDArray[np.float64]:
+        """Eq (6): the smallest difference from the start that has a direction."""
+        return _per_dim(self.still_distance_m, self.still_angle_rad, self.still_openness, n_fingers)
 
 
 @functools.lru_cache(maxsize=256)

@@ -44,7 +44,7 @@ class OperatorHistory:
         a = Attempt(_flatten(start), _flatten(terminal))
         return OperatorHistory((*self.attempts, a))
 
-    def term(self, n_fingers: int, eps: Array) -> Array:
+    def term(self, n_fingers: int, threshold: Array) -> Array:
         """Mean unit direction from start to terminal, (6 + F,); zeros with no attempts."""
         dim = 6 + n_fingers
         usable = [a for a in self.attempts if len(a.start) == dim]
@@ -53,7 +53,7 @@ class OperatorHistory:
         starts = HandState.from_rotvec(*_split([a.start for a in usable]))
         terms = HandState.from_rotvec(*_split([a.terminal for a in usable]))
         # unit_directions is dimension-first: (6 + F, N) in, the mean over the N attempts out.
-        return np.asarray(unit_directions(diff(terms, starts).T, eps).mean(-1))
+        return np.asarray(unit_directions(diff(terms, starts).T, threshold).mean(-1))
 
     def to_dict(self) -> dict[str, Any]:
         return {

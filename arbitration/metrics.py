@@ -123,6 +123,34 @@ class TTest:
     df: float
 
 
+@dataclass(frozen=True)
+class ActionProducts:
+    """Per-action inner products of the operator's and the output's actions, the terms every
+    action metric is made of: dot = U_h . U_out, hh = |U_h|^2, oo = |U_out|^2 (shape (...)).
+
+    `of(U_h, U_out, weights)` computes them with per-dimension weights (the metric of a
+    variant: all ones for the literal definitions, 1 / v_max^2 for actions divided by the
+    velocity limits, zeros outside a group for one group alone).
+    """
+
+    dot: Array
+    hh: Array
+    oo: Array
+
+    @classmethod
+    def of(
+        cls, U_h: ArrayLike, U_out: ArrayLike, weights: ArrayLike | None = None
+    ) -> ActionProducts:
+        a = np.asarray(U_h, dtype=np.float64)
+        b = np.asarray(U_out, dtype=np.float64)
+        w = np.ones(a.shape[-1]) if weights is None else np.asarray(weights, dtype=np.float64)
+        return cls(
+            np.einsum("...i,...i,i->...", a, b, w),
+            np.einsum("...i,...i,i->...", a, a, w),
+            np.einsum("...i,...i,i->...", b, b, w),
+        )
+
+
 def action_cosine_distance(U_h: ArrayLike, U_out: ArrayLike, tol: float = 1e-9) -> Array:
     """Cosine distance of every action, (..., D) -> (...), nan where a vector is zero.
 
@@ -131,12 +159,15 @@ def action_cosine_distance(U_h: ArrayLike, U_out: ArrayLike, tol: float = 1e-9) 
         U_out: output actions (..., D), same units.
         tol: norms at or below this count as zero.
     """
-    a = np.asarray(U_h, dtype=np.float64)
-    b = np.asarray(U_out, dtype=np.float64)
-    na = np.linalg.norm(a, axis=-1)
-    nb = np.linalg.norm(b, axis=-1)
+    return cosine_distances(ActionProducts.of(U_h, U_out), tol)
+
+
+def cosine_distances(p: ActionProducts, tol: float = 1e-9) -> Array:
+    """`action_cosine_distance` from the actions' products: 1 - dot / (|U_h| |U_out|), nan
+    where a norm is at or below `tol`."""
+    na, nb = np.sqrt(p.hh), np.sqrt(p.oo)
     ok = (na > tol) & (nb > tol)
-    cos = np.einsum("...i,...i->...", a, b) / np.where(ok, na * nb, 1.0)
+    cos = p.dot / np.where(ok, na * nb, 1.0)
     return np.where(ok, 1.0 - np.clip(cos, -1.0, 1.0), np.nan)
 
 
@@ -155,9 +186,15 @@ def cosine_distance(
     Returns:
         Sums, means and counts with the batch shape (...) (0-d arrays for one sequence).
     """
-    c = action_cosine_distance(U_h, U_out, tol)
+    return summarise_cosines(action_cosine_distance(U_h, U_out, tol), valid)
+
+
+def summarise_cosines(c: ArrayLike, valid: ArrayLike | None = None) -> CosineDistance:
+    """`cosine_distance` from the per-action distances c (..., T) (nan: skipped)."""
+    c = np.asarray(c, dtype=np.float64)
     mask = np.ones(c.shape, dtype=bool) if valid is None else np.asarray(valid, dtype=bool)
-    counted = mask & ~np.isnan(c)
+    skipped = np.isnan(c)
+    counted = mask & ~skipped
     total = np.where(counted, c, 0.0).sum(-1)
     n = counted.sum(-1)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -166,7 +203,7 @@ def cosine_distance(
         total=np.asarray(total, dtype=np.float64),
         mean=np.asarray(mean, dtype=np.float64),
         n_actions=np.asarray(n, dtype=np.int64),
-        n_skipped=np.asarray((mask & np.isnan(c)).sum(-1), dtype=np.int64),
+        n_skipped=np.asarray((mask & skipped).sum(-1), dtype=np.int64),
     )
 
 
@@ -189,14 +226,18 @@ def agreement(
     Returns:
         Ratio and counts with the batch shape (...).
     """
-    a = np.asarray(U_h, dtype=np.float64)
-    b = np.asarray(U_out, dtype=np.float64)
-    dot = np.einsum("...i,...i->...", a, b)
-    mask = np.ones(dot.shape, dtype=bool) if valid is None else np.asarray(valid, dtype=bool)
+    return agreement_of(ActionProducts.of(U_h, U_out), valid, skip_idle, tol)
+
+
+def agreement_of(
+    p: ActionProducts, valid: ArrayLike | None = None, skip_idle: bool = True, tol: float = 1e-9
+) -> Agreement:
+    """`agreement` from the actions' products (..., T)."""
+    mask = np.ones(p.dot.shape, dtype=bool) if valid is None else np.asarray(valid, dtype=bool)
     if skip_idle:
-        mask = mask & (np.linalg.norm(a, axis=-1) > tol)
+        mask = mask & (p.hh > tol * tol)
     n = mask.sum(-1)
-    k = (mask & (dot > 0.0)).sum(-1)
+    k = (mask & (p.dot > 0.0)).sum(-1)
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio = np.where(n > 0, k / np.maximum(n, 1), np.nan)
     return Agreement(

@@ -169,9 +169,7 @@ class KitchenEnv:
             self._robot.step()
         self._robot.reset_clock()
         self._utensil_id = self._world.utensils[utensil]
-        p_u, R_u = self._utensil_pose()
-        p_g, R_g = T_utensil_grasp(UTENSILS[utensil])
-        pick = (p_u + R_u @ p_g, R_u @ R_g)
+        pick = self._grasp_pose(utensil)
         place = (np.asarray(self.config.place_position_m, dtype=np.float64), R_PALM_DOWN.copy())
         self._task = PickPlaceTask(
             self.config.task, utensil, pick, place, _regions(), len(FINGER_NAMES), seed
@@ -231,10 +229,6 @@ class KitchenEnv:
         """The robot's current state."""
         return self.robot.state()
 
-    def _utensil_pose(self) -> tuple[Array, Array]:
-        p, q = pb.getBasePositionAndOrientation(self._utensil_id, physicsClientId=self._c)
-        return np.array(p, dtype=np.float64), R_from_quat_xyzw(q)
-
     def _observe(self, state: RobotState) -> TaskObservation:
         p, _ = pb.getBasePositionAndOrientation(self._utensil_id, physicsClientId=self._c)
         name = self.task.utensil
@@ -251,6 +245,16 @@ class KitchenEnv:
             touching=bool(touching_fingers)
             or any(c.other_body == self._utensil_id for c in state.contacts),
         )
+
+    def _grasp_pose(self, name: str) -> tuple[Array, Array]:
+        p_u, R_u = self.utensil_pose(name)
+        p_g, R_g = T_utensil_grasp(UTENSILS[name])
+        return p_u + R_u @ p_g, R_u @ R_g
+
+    def grasp_pose(self) -> tuple[Array, Array]:
+        """The palm pose that grasps the task's utensil where it is now (p [m], R): the
+        task's true pick goal until the utensil moves."""
+        return self._grasp_pose(self.task.utensil)
 
     def utensil_pose(self, name: str | None = None) -> tuple[Array, Array]:
         """True pose (COM position [m], R) of a utensil (default: the task's)."""

@@ -30,6 +30,7 @@ from dsteleop.arbitration import (
     InvalidConfig,
     Mode,
     OperatorHistory,
+    RowModes,
     diff,
     integrate,
     log_relative,
@@ -181,7 +182,7 @@ def test_rotation_by_two_pi_changes_nothing(theta: float, k: int) -> None:
 
 def test_p_is_one_at_the_goal_and_falls_monotonically_with_distance() -> None:
     cfg = ArbitrationConfig()
-    eps = cfg.eps(F)
+    eps = cfg.alloc_floor(F)
     start = state([0.0, 0.0, 0.0], [0, 0, 0], 1.0)
     goal = state([0.3, -0.2, 0.1], [0.3, -0.4, 0.5], 0.0)
     d_gs = diff(goal, start)
@@ -213,33 +214,34 @@ def test_allocation_is_dimension_first(batch: tuple[int, ...]) -> None:
     rng = np.random.default_rng(12)
     cfg = ArbitrationConfig()
     D = 6 + F
-    eps, v_max = cfg.eps(F), cfg.v_max(F)
+    eps, v_max = cfg.alloc_floor(F), cfg.v_max(F)
+    step, offset = cfg.still_step(F, 1 / 30), cfg.still_offset(F)
     d1, d2, d3 = (rng.normal(0.0, 0.3, (D, *batch)) for _ in range(3))
-    d3[:, (0,) * len(batch)] = 0.0  # one column below every eps
+    d3[:, (0,) * len(batch)] = 0.0  # one column below every threshold
     U = rng.normal(0.0, 0.5, (D, *batch))
     hist = rng.normal(0.0, 0.3, D)
     P = expected_allocation(d1, d2, eps, cfg.kappa)
-    u = unit_directions(d3, eps)
-    psi = expected_speed_change(U, v_max, d1, d3, hist, eps)
+    u = unit_directions(d3, offset)
+    psi = expected_speed_change(U, v_max, d1, d3, hist, step, offset)
     B = willingness(d1, d2, cfg.p, cfg.q, cfg.b, cfg.psi_robot_floor)
     a = ds_alpha(P, u, B)
-    s = standard_alpha(d1[:3], d2[:3], d3[:3], cfg.eps_trans_m)
+    s = standard_alpha(d1[:3], d2[:3], d3[:3], cfg.alloc_floor_m)
     assert P.shape == u.shape == psi.shape == B.shape == a.shape == (D, *batch)
     assert s.shape == batch
     np.testing.assert_array_equal(u[:, (0,) * len(batch)], 0.0)
     for idx in np.ndindex(*batch):
         col: tuple[slice | int, ...] = (slice(None), *idx)
         np.testing.assert_allclose(P[col], expected_allocation(d1[col], d2[col], eps, cfg.kappa))
-        np.testing.assert_allclose(u[col], unit_directions(d3[col], eps))
+        np.testing.assert_allclose(u[col], unit_directions(d3[col], offset))
         np.testing.assert_allclose(
-            psi[col], expected_speed_change(U[col], v_max, d1[col], d3[col], hist, eps)
+            psi[col], expected_speed_change(U[col], v_max, d1[col], d3[col], hist, step, offset)
         )
         np.testing.assert_allclose(
             B[col], willingness(d1[col], d2[col], cfg.p, cfg.q, cfg.b, cfg.psi_robot_floor)
         )
         np.testing.assert_allclose(a[col], ds_alpha(P[col], u[col], B[col]))
         np.testing.assert_allclose(
-            s[idx], standard_alpha(d1[:3][col], d2[:3][col], d3[:3][col], cfg.eps_trans_m)
+            s[idx], standard_alpha(d1[:3][col], d2[:3][col], d3[:3][col], cfg.alloc_floor_m)
         )
 
 
@@ -308,7 +310,7 @@ def run_loop(
     start = hand_start = hand_path[0] if segment_start is None else segment_start
     prev, hand_prev = X, hand_path[0]
     fs = arb.initial_state(6 + F)
-    hist = None if history is None else history.term(F, cfg.eps(F))
+    hist = None if history is None else history.term(F, cfg.still_offset(F))
     out = []
     for hand in hand_path[1:]:
         fs, r = arb.step(
@@ -477,6 +479,31 @@ def test_ds_filter_state_over_many_steps_matches_batched() -> None:
             np.testing.assert_allclose(rs.B, rb.B[k], atol=1e-12)
 
 
+def test_a_batch_that_mixes_modes_equals_one_batch_per_mode() -> None:
+    """The study steps every mode of a trajectory in one batch (`RowModes`): each row gets
+    exactly what a batch of its own mode gives, over ticks (the DS windows included)."""
+    rng = np.random.default_rng(8)
+    cfg = ArbitrationConfig(window=3)
+    modes = [Mode.S, Mode.DS, Mode.MANUAL, Mode.AUTONOMOUS, Mode.DS, Mode.S]
+    rows = RowModes.of(modes)
+    mixed = make_arbiter(Mode.DS, cfg)
+    fs_mixed = mixed.initial_state(10, (len(modes),))
+    alone = {m: make_arbiter(m, cfg) for m in set(modes)}
+    fs_alone = [alone[m].initial_state(10) for m in modes]
+    for _ in range(6):
+        inputs = [
+            input_from_states([random_state(rng, (), 4) for _ in range(7)], 0.05) for _ in modes
+        ]
+        fs_mixed, rb = mixed.step(fs_mixed, stack_inputs(inputs), rows)
+        for i, m in enumerate(modes):
+            fs_alone[i], r = alone[m].step(fs_alone[i], inputs[i])
+            assert_step_matches(r, rb, (i,), atol=1e-12)
+    kept = rows.select(np.array([True, False, True, False, False, True]))
+    assert [m for m, _ in kept.groups()] == [Mode.S, Mode.MANUAL]
+    with pytest.raises(ConfigError, match="modes for"):
+        mixed.step(fs_mixed, stack_inputs(inputs), kept)
+
+
 @pytest.mark.parametrize("mode", list(Mode))
 def test_closed_loop_single_and_batched_agree(mode: Mode) -> None:
     """X_next fed back as X_current and as the reference X_ref for 40 ticks, with a history
@@ -571,7 +598,8 @@ def test_no_fingers_works_for_planar_studies() -> None:
 @pytest.mark.parametrize("mode", list(Mode))
 @pytest.mark.parametrize("batch", [(), (64,)])
 def test_holding_still_gives_finite_psi_and_b(mode: Mode, batch: tuple[int, ...]) -> None:
-    """No motion (every difference 0), motion below eps (unit directions 0) and tiny rotations
+    """No motion (every difference 0), motion below the still thresholds (unit directions 0)
+    and tiny rotations
     (the series branches): psi and B finite, with their known values."""
     rng = np.random.default_rng(2)
     cfg = ArbitrationConfig(window=1)  # B and alpha unfiltered
@@ -593,8 +621,8 @@ def test_holding_still_gives_finite_psi_and_b(mode: Mode, batch: tuple[int, ...]
     np.testing.assert_array_equal(r.B, 0.0)  # psi_human = 0: unwilling (p > 1)
     np.testing.assert_allclose(r.psi_robot, r.U_robot / v_max, rtol=0, atol=1e-15)
 
-    # The hand moved by less than eps in every group, through tiny angles.
-    dp = rng.normal(0.0, 5e-5, H.position.shape)
+    # The hand moved by less than the still thresholds in every group, through tiny angles.
+    dp = rng.normal(0.0, 2e-5, H.position.shape)
     w = rng.normal(0.0, 2e-5, H.position.shape)
     dg = rng.normal(0.0, 5e-5, H.openness.shape)
     tiny = HandState(H.position - dp, so3_exp(w) @ H.rotation, H.openness - dg)
@@ -607,7 +635,7 @@ def test_holding_still_gives_finite_psi_and_b(mode: Mode, batch: tuple[int, ...]
     np.testing.assert_allclose(r.U_human[..., :3], dp / inp.dt, rtol=1e-9, atol=1e-15)
     np.testing.assert_allclose(r.U_human[..., 3:6], -w / inp.dt, rtol=1e-6, atol=1e-12)
     np.testing.assert_allclose(r.U_human[..., 6:], dg / inp.dt, rtol=1e-9, atol=1e-15)
-    # Unit directions vanish below eps: psi is the normalised action alone.
+    # Unit directions vanish below the thresholds: psi is the normalised action alone.
     np.testing.assert_allclose(r.psi_human, r.U_human / v_max, rtol=0, atol=1e-15)
     assert ((r.B >= 0.0) & (r.B <= 1.0)).all()
 
@@ -936,17 +964,17 @@ def test_mode_parse() -> None:
 def test_operator_history_term_and_round_trip() -> None:
     cfg = ArbitrationConfig()
     h = OperatorHistory()
-    np.testing.assert_array_equal(h.term(F, cfg.eps(F)), 0.0)
+    np.testing.assert_array_equal(h.term(F, cfg.still_offset(F)), 0.0)
     a = state([0, 0, 0], [0, 0, 0], 1.0)
     b = state([0.3, 0.4, 0], [0, 0, 0.5], 0.0)
     h = h.add(a, b)
-    term = h.term(F, cfg.eps(F))
+    term = h.term(F, cfg.still_offset(F))
     np.testing.assert_allclose(term[:3], [0.6, 0.8, 0.0])
     np.testing.assert_allclose(term[3:6], [0, 0, 1.0])
     np.testing.assert_allclose(term[6:], -0.5)
     # A second attempt along -y: the mean of the two unit directions.
     h2 = h.add(a, state([0.0, -0.2, 0.0], [0, 0, 0], 1.0))
-    np.testing.assert_allclose(h2.term(F, cfg.eps(F))[:3], [0.3, -0.1, 0.0])
+    np.testing.assert_allclose(h2.term(F, cfg.still_offset(F))[:3], [0.3, -0.1, 0.0])
     again = OperatorHistory.from_dict(json.loads(json.dumps(h.to_dict())))
     assert again == h
     with pytest.raises(ValueError):

@@ -345,7 +345,7 @@ def test_decide_and_absorb_are_pure() -> None:
     assert not s1.lost and s1.X_ref is d.X_next
     s2, d2 = loop_tick.decide(s1, cfg, arbiter, None, state((0.5, 0.1, 0.2)), DT, None)
     assert d2.status is Status.LOST and d2.reason == loop_tick.NO_INPUT and s2.lost
-    s3, ended = loop_tick.absorb(s2, dataclasses.replace(_step(d2.X_next), events=()))
+    s3, ended = loop_tick.absorb(s2, dataclasses.replace(_step(d2.X_next), events=()), arbiter)
     assert not ended and s3.X_prev is s2.X_current
 
 

@@ -95,12 +95,15 @@ def test_session_files_and_metadata(ds_session: Path) -> None:
     for key in STEP_ARRAYS:
         assert getattr(step, key).shape == (len(meta["dims"]),)
     events = [e for r in s.records for e in r.plant.events]
-    assert any(e.kind is EventKind.GRASP for e in events)
     outcome = next(r.outcome for r in s.records if r.outcome is not None)
     assert ("success" if outcome.success else "failure") == meta["outcome"]
-    # The operator history persisted beside the session: one attempt per finished segment.
+    # The operator history persisted beside the session: one attempt per finished segment
+    # (the pick ends at the grasp, the place at the outcome; a run that never grasps ends
+    # its one segment at the outcome). Whether this machine's physics grasps is not tested
+    # here (tests/test_demo.py tests the demo's outcomes as rates over seeds).
     hist = OperatorHistory.from_dict(json.loads((ds_session.parent / HISTORY_FILE).read_text()))
-    assert len(hist) == 2
+    grasps = sum(e.kind is EventKind.GRASP for e in events)
+    assert len(hist) == grasps + 1
 
 
 def test_replay_in_the_recorded_mode_reproduces_every_alpha(ds_session: Path) -> None:
@@ -320,21 +323,29 @@ SAMPLES = sorted(p.name for p in RECORDINGS.iterdir() if (p / "meta.json").is_fi
 
 def test_a_session_recorded_before_the_format_change_opens_and_replays() -> None:
     """The golden schema-1 session (tests/golden/README.md) opens, and replays against its
-    recorded robot: the same ticks, the same goals and actions, the same outcome. Only the
-    quantities behind eq (6)'s thresholds may differ from what it recorded: its rotations
-    came from PyBullet's single-precision quaternions unnormalised (orthonormal only to
-    ~1e-7; they are normalised now), on which the old and the current SO(3) logarithm
-    differ at 1e-7, and eq (6) gates small differences by a threshold, so such a change can
-    flip a unit direction."""
+    recorded robot: the same ticks, the same goals and actions, the same outcome.
+
+    What the arbitration derives from them changed where its reading changed since
+    (docs/METHOD.md): eq (4)'s denominator floor is now a task-scale length instead of 1 mm,
+    so P differs in the dimensions whose goal equals their start within a segment (y, whose
+    pick goal is the start's y, and the fingers); P of x, z and the rotations is unchanged.
+    eq (6)'s thresholds changed too (psi, B and alpha follow). The retired `eps_*` fields of
+    the recorded configuration are read and dropped."""
     s = read_session(GOLDEN_V1)
     assert s.meta["schema"] == "dsteleop.session/1" and s.complete
+    assert "eps_trans_m" in s.meta["loop"]["arbitration"]  # a retired field, read and dropped
     trace = replay_session(s, s.mode, robot="recorded")
     assert len(trace) == len(s.records)
     m = trace.arbitrated
     assert m.sum() == sum(r.step is not None for r in s.records) > 400
-    for name in ("P_human", "P_robot", "U_human", "U_robot"):
+    for name in ("U_human", "U_robot"):
         recorded = np.array([getattr(r.step, name) for r in s.records if r.step is not None])
         np.testing.assert_allclose(getattr(trace.step, name)[m], recorded, atol=1e-6, rtol=0)
+    moved = [s.dims.index(d) for d in ("x", "z", "roll", "pitch", "yaw")]
+    for name in ("P_human", "P_robot"):
+        recorded = np.array([getattr(r.step, name) for r in s.records if r.step is not None])
+        got = getattr(trace.step, name)[m]
+        np.testing.assert_allclose(got[:, moved], recorded[:, moved], atol=1e-6, rtol=0)
     assert np.isfinite(trace.step.alpha[m]).all() and np.isfinite(trace.step.B[m]).all()
     assert trace.outcome_name == s.meta["outcome"] == "success"
 

@@ -87,7 +87,12 @@ def build(
         demo: DemoOperator | None = None
         frames: FrameRecorder | None = None
         if spec.kind == "demo":
-            demo = DemoOperator(plant.true_goals, start, DemoConfig(seed=options.seed))
+            demo = DemoOperator(
+                plant.true_goals,
+                start,
+                DemoConfig(seed=options.seed),
+                arbitration=options.loop.arbitration,
+            )
             source: FrameSource = demo_source(
                 demo, DemoCamera(start, mapping), realtime=realtime, seed=options.seed
             )

@@ -45,7 +45,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_loop_options(parser, default_source="demo")
     parser.add_argument("--realtime", action="store_true", help="run at the loop rate (live)")
     parser.add_argument(
-        "--max-seconds", type=float, default=120.0, help="stop after this loop time [s]"
+        "--max-seconds",
+        type=float,
+        default=150.0,
+        help="stop after this loop time [s] (the task fails by timeout at 120 s)",
     )
 
 

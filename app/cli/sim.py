@@ -1,6 +1,7 @@
 """`dsteleop sim`: the paper's simulation study (Section IV-A/B), S vs DS on planar trajectories.
 
-    dsteleop sim --trajectories 1000 --seed 0 --out DIR [--workers N] [--operator side|aligned]
+    dsteleop sim --trajectories 1000 --seed 0 --out DIR [--workers N]
+                 [--operator closed-loop|side|aligned|deviate]
                  [--param NAME=VALUE] [--config FILE.json]
 
 writes DIR/summary.json, DIR/summary.md (shaped like the paper's Table I) and PNG figures
@@ -27,7 +28,7 @@ from dsteleop.errors import ConfigError
 
 log = logging.getLogger("dsteleop.sim")
 
-OPERATORS = ("side", "aligned")
+OPERATORS = ("closed-loop", "side", "aligned", "deviate")
 
 
 @dataclass(frozen=True)
@@ -70,10 +71,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--operator",
-        default="side",
+        default="closed-loop",
         help=(
-            "side (the paper's scenario: agrees on position, prefers another heading) "
-            "or aligned (agrees on every dimension)"
+            "closed-loop (default: watches the robot and steers it to the true handle), or "
+            "open loop: side (the paper's scenario: agrees on position, prefers another "
+            "heading), aligned (agrees on every dimension), deviate (Fig. 6: the heading "
+            "deviates late)"
         ),
     )
     parser.add_argument(
@@ -168,7 +171,7 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
     cmd = command(args)
     from dsteleop.app.study import core, figures, report
-    from dsteleop.app.study.run import simulate
+    from dsteleop.app.study.run import simulate_all
 
     cfg = cmd.study
     out = prepare_out_dir(cmd.out)
@@ -177,23 +180,27 @@ def run(args: argparse.Namespace) -> int:
         "sim: %d trajectories, operator %s, modes %s, %d worker(s), out %s",
         *(cfg.trajectories, cfg.operator, modes, cmd.workers, out),
     )
+    # Fig. 5/6 and the x-per-y remark come from an operator who does not watch the robot, as
+    # in the paper: the run itself for an open-loop operator, else an open-loop companion.
+    fig_cfg = core.figure_study(cfg)
+    studies = [cfg] if fig_cfg is cfg else [cfg, fig_cfg]
     show = sys.stderr.isatty() if cmd.progress is None else bool(cmd.progress)
     files = ["summary.json", "summary.md"]
-    example = cfg.example if cfg.example is not None else core.first_lead_index(cfg)
+    example = fig_cfg.example if fig_cfg.example is not None else core.first_lead_index(fig_cfg)
 
     def example_figures() -> None:
         # Needs only the configuration: drawn while the workers simulate.
-        files.extend(figures.write_example_figures(cfg, example, out))
+        files.extend(figures.write_example_figures(fig_cfg, example, out))
 
-    with Progress(
-        cfg.trajectories * len(cfg.modes), sys.stderr, show, "sim", "trajectory-modes"
-    ) as bar:
-        result = simulate(cfg, cmd.workers, bar, example_figures if cmd.figures else None)
-    summary = core.summarise(result)
+    total = sum(c.trajectories * len(c.modes) for c in studies)
+    with Progress(total, sys.stderr, show, "sim", "trajectory-modes") as bar:
+        results = simulate_all(studies, cmd.workers, bar, example_figures if cmd.figures else None)
+    result, fig_result = results[0], results[-1]
+    summary = core.summarise(result, fig_result)
     (out / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False) + "\n")
     (out / "summary.md").write_text(report.markdown(summary))
     if cmd.figures:
-        files.insert(2, figures.write_distribution_figure(result, out))
+        files.insert(2, figures.write_distribution_figure(fig_result, out))
     printed = report.brief(summary, out, files, time.monotonic() - t0, cmd.workers)
     printed["example"] = example if cmd.figures else None
     json.dump(printed, sys.stdout, indent=2)

@@ -1,29 +1,47 @@
-"""The built-in demo: a synthetic operator's hand doing the pick-and-place task.
+"""The built-in demo: a simulated person doing the pick-and-place task through the camera.
 
-The operator plans in the robot's base frame, like a person watching the robot on a screen:
-one goal-directed movement at a time, drawn from the stochastic operator model
-(`dsteleop.app.operator.open_loop`, the same model as the simulation study), towards the
-TRUE goal of the current stage (the robot only knows noisy goals):
+The person is the closed-loop operator of the study (`dsteleop.app.operator.closed_loop`), in
+6-D with the robot's fingers: it watches the robot (the loop's records, with its perception
+delay) and moves its hand, in submovements, to bring the robot's palm through its own plan
+towards the TRUE goals (the robot only knows noisy ones):
 
-    reach    open hand to the grasp pose of the utensil
-    grasp    close the fingers where the hand is
-    carry    closed hand to the place pose above the bin
-    release  open the fingers
+    open      open the hand where it is (only after a failed grasp: see below)
+    approach  open hand `approach_m` above the grasp pose, along the handle: a person
+              reaching for a spoon standing in a holder brings the hand above the grip and
+              lowers it onto it (arriving at grasp height off-centre, the finger roots land
+              on the grip's top edge, and push or twist the utensil in its holder)
+    pick      open hand at the utensil's grasp pose (lowered onto the grip)
+    grasp     close the fingers there (a finger movement: the palm is not steered)
+    carry     closed hand at the place pose above the bin
+    release   open the fingers
+    withdraw  open hand a little above the place pose (the utensil slides off the fingers);
+              satisfied, it holds still
 
-After each movement the operator looks at the robot (`observe`, fed by the loop's records):
-if the robot's palm is not yet within tolerance of the stage's goal, the next movement is a
-correction that moves the hand by the robot's remaining error (the velocity mapping makes the
-robot follow the hand's motion); after `max_corrections` it moves on anyway.
+A stage the robot has already reached by itself is skipped, and a person who sees the robot
+grasp the utensil by itself (the task's grasp event while it still reaches for it) moves on
+to the carry.
+
+A person whose grasp failed (the hand closed at the utensil, but the utensil stayed in its
+holder) opens the hand and tries again: the retry starts with the `open` stage, which only
+an open hand satisfies. (Starting it at `pick` would not do: the closed hand at the grasp
+pose already satisfies `grasp`, so the stage-skipping would jump straight to `carry`, and the
+retry would fire again on the next tick, forever, with the hand never opening.)
+
+The person looks at the utensil, not at where it stood: until it holds the utensil, its
+approach and grasp poses follow the utensil's current pose (a hand that brushed it may have
+pushed or twisted it in its holder).
+
+When the task resets (`X_reset` in a record: after an outcome, or a reset from the page) it
+starts over from the robot's new pose with a fresh plan.
 
 The hand reaches the tracking pipeline as landmarks of the kinematic hand model
 (`tracking.synthetic.SyntheticSource`) in a virtual camera: the operator's robot-frame pose is
 converted to the camera frame through a fixed `WorkspaceMapping` anchored where the demo's
-camera sees the hand at the robot's start pose.
+camera sees the hand at the robot's start pose. The loop cannot tell it from a person.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -31,9 +49,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from dsteleop.app.operator.open_loop import OperatorStrategy, OperatorTrajectory, sample_trajectory
+from dsteleop.app.operator.closed_loop import ClosedLoopOperator, Intention, OperatorProfile
 from dsteleop.app.session.schema import TickRecord
-from dsteleop.arbitration import HandState, so3_log
+from dsteleop.arbitration import ArbitrationConfig, HandState
+from dsteleop.arbitration.se3 import stack as stack_states
+from dsteleop.robot.task import EventKind, Phase
 from dsteleop.tracking.mapping import MappingConfig, WorkspaceMapping
 from dsteleop.tracking.synthetic import LandmarkNoise, SyntheticSource, palm_facing_camera
 
@@ -44,39 +64,93 @@ Array = NDArray[np.float64]
 #: 0.56 m to the left and 0.2 m down, 1.5x the hand) stays in view.
 HAND_ANCHOR_CAM_M = (0.18, -0.06, 0.6)
 
+STAGES = ("open", "approach", "pick", "grasp", "carry", "release", "withdraw")
+#: The stage a first attempt starts at (the hand starts open: nothing to open).
+FIRST_STAGE = STAGES.index("approach")
+
 
 @dataclass(frozen=True)
 class DemoConfig:
-    """Demo operator settings.
+    """The demo person's plan (the person itself is `OperatorProfile`).
 
     Attributes:
-        seed: seed of every random draw of the operator.
-        tolerance_m: the operator is satisfied when the robot's palm is this close [m].
+        seed: seed of every random draw of the operator (each episode its own stream).
+        grasp_tolerance_m: it closes its hand when the robot's palm is this close to the
+            grasp pose [m] (the task's own closing radius, `TaskConfig.close_radius_m`: a
+            person who knows the task aims as close as the robot is asked to) ...
+        grasp_tolerance_rad: ... and this close in orientation [rad] (`close_radius_rad`).
+        tolerance_m: it is satisfied when the robot's palm is this close to the other
+            stages [m] ...
         tolerance_rad: ... and this close in orientation [rad].
-        max_corrections: corrective movements per stage before moving on.
+        tolerance_openness: ... and the fingers this close (fingers closed on a utensil
+            stop at contact, around openness 0.3).
+        approach_m: how far above the grasp pose (along the handle) the hand comes before it
+            is lowered onto the grip [m]: the open fingers reach 9 cm below the palm, so
+            5 cm above the grasp pose they already straddle the grip while the finger roots
+            are well clear of its top.
+        withdraw_m: how far the hand withdraws upwards after the release [m].
         closed_openness: finger openness of a closed hand.
+        patience_s: it gives up after this long in one episode without finishing [s].
+        retry_after_s: it tries again when the task is not over this long after it was
+            satisfied [s] (observe).
+        speed_share: its hand's peak speeds, as a share of the robot's velocity limits. The
+            camera adds jitter to the hand's measured speed (a still hand in the demo camera:
+            p95 71 mm/s, 0.36 rad/s, 1.0 /s, i.e. 25-36 % of the limits; docs/METHOD.md §4),
+            and U_human saturates at the limits, so a hand moving at the limits would lose
+            motion: 0.6 leaves that headroom.
         fps: camera frame rate [Hz].
     """
 
     seed: int = 0
-    tolerance_m: float = 0.012
+    grasp_tolerance_m: float = 0.01
+    grasp_tolerance_rad: float = 0.1
+    tolerance_m: float = 0.015
     tolerance_rad: float = 0.15
-    max_corrections: int = 4
+    tolerance_openness: float = 0.4
+    approach_m: float = 0.05
+    withdraw_m: float = 0.08
     closed_openness: float = 0.0
+    patience_s: float = 90.0
+    retry_after_s: float = 2.0
+    speed_share: float = 0.6
     fps: float = 30.0
 
 
-STAGES = ("reach", "grasp", "carry", "release", "done")
+def demo_intention(
+    pick: HandState, place: HandState, config: DemoConfig
+) -> tuple[HandState, Array, Array]:
+    """The stages' robot poses (S,), tolerances (S, 3) and masks (S, D) of `STAGES`."""
+    F = pick.n_fingers
+    opened, closed = np.ones(F), np.full(F, config.closed_openness)
+    above = pick.position - config.approach_m * pick.rotation[:, 2]  # palm z: down the handle
+    poses = [
+        HandState(pick.position, pick.rotation, opened),  # open: fingers only (mask)
+        HandState(above, pick.rotation, opened),
+        HandState(pick.position, pick.rotation, opened),
+        HandState(pick.position, pick.rotation, closed),
+        HandState(place.position, place.rotation, closed),
+        HandState(place.position, place.rotation, opened),
+        HandState(place.position + np.array([0.0, 0.0, config.withdraw_m]), place.rotation, opened),
+    ]
+    S = len(poses)
+    tol = np.tile((config.tolerance_m, config.tolerance_rad, config.tolerance_openness), (S, 1))
+    tol[STAGES.index("pick"), :2] = (config.grasp_tolerance_m, config.grasp_tolerance_rad)
+    tol[STAGES.index("withdraw"), :2] = (2 * config.tolerance_m, 2 * config.tolerance_rad)
+    # Opening and closing the hand are finger movements: the palm is not steered meanwhile.
+    mask = np.ones((S, 6 + F))
+    mask[[STAGES.index("open"), STAGES.index("grasp"), STAGES.index("release")], :6] = 0.0
+    return stack_states(poses), tol, mask
 
 
 class DemoOperator:
-    """Closed-loop synthetic operator (module docstring). Thread-safe.
+    """The demo person (module docstring): a `ClosedLoopOperator` of one. Thread-safe: the
+    camera thread asks for the hand, the loop thread reports the robot.
 
     Args:
         true_goals: returns the true (pick, place) palm poses in the base frame.
         start: the robot's start state (the hand starts there, open).
-        config: demo settings.
-        strategy: operator model strategy (default: the simulation study's).
+        config: the demo person's plan.
+        profile: the person (default: `OperatorProfile()` capped at the robot's limits).
     """
 
     def __init__(
@@ -84,106 +158,137 @@ class DemoOperator:
         true_goals: Callable[[], tuple[HandState, HandState]],
         start: HandState,
         config: DemoConfig | None = None,
-        strategy: OperatorStrategy | None = None,
+        profile: OperatorProfile | None = None,
+        arbitration: ArbitrationConfig | None = None,
     ) -> None:
         self.config = config or DemoConfig()
-        self.strategy = strategy or OperatorStrategy()
-        self._hand_strategy = dataclasses.replace(self.strategy, finger_onset=(0.0, 0.2))
+        a = arbitration or ArbitrationConfig()
+        base = profile or OperatorProfile(patience_s=self.config.patience_s)
+        self.profile = base.for_robot(
+            a.v_max_mps, a.w_max_radps, a.g_max_per_s, self.config.speed_share
+        )
         self._true_goals = true_goals
-        self._rng = np.random.default_rng(self.config.seed)
         self._lock = threading.Lock()
-        self._robot: HandState = start
-        self._stage = 0
-        self._corrections = 0
-        self._hand = start
-        self._seg: OperatorTrajectory | None = None
-        self._seg_t0 = 0.0
+        self._episode = 0
+        self._attempt = 0
+        self._first = FIRST_STAGE  # the stage the current attempt started at
+        self._done_since: float | None = None
+        self._t = 0.0  # the latest source time the hand was asked for
         self._seen = False
+        self._holding = False  # the utensil is in the hand (a grasp event, no release since)
+        opened = HandState(start.position, start.rotation, np.ones(start.n_fingers))
+        self._op = self._person(opened, 0.0, FIRST_STAGE)
         self.dt = 1.0 / self.config.fps
+
+    def _intention(self, first: int) -> Intention:
+        """The plan from stage `first` of STAGES on, to the true goals as they are now."""
+        pick, place = self._true_goals()
+        targets, tol, mask = demo_intention(pick, place, self.config)
+        S = len(STAGES) - first
+        plan = HandState(
+            targets.position[first:], targets.rotation[first:], targets.openness[first:]
+        )
+        return Intention(
+            _one(plan), tol[None, first:], mask[None, first:], np.array([S]), np.array([0.3])
+        )
+
+    def _person(self, hand: HandState, t0_s: float, first: int) -> ClosedLoopOperator:
+        """A fresh attempt from `hand`, at stage `first` of STAGES."""
+        intention = self._intention(first)
+        rng = np.random.default_rng([self.config.seed, self._episode, self._attempt])
+        self._first, self._done_since = first, None
+        return ClosedLoopOperator(intention, _one(hand), self.profile, [rng], t0_s)
 
     @property
     def stage(self) -> str:
-        return STAGES[self._stage]
+        """The stage the person works on (`done` when satisfied, `gave up` after patience)."""
+        with self._lock:
+            if bool(self._op.gave_up[0]):
+                return "gave up"
+            if bool(self._op.done[0]):
+                return "done"
+            return STAGES[self._first + int(self._op.stage[0])]
 
     def observe(self, record: TickRecord) -> None:
-        """See the robot (the loop calls this with every tick's record): its pose, and a
-        task reset, after which the operator starts over from the robot's new pose."""
+        """See the robot and the task (the loop calls this with every tick's record).
+
+        A task reset starts a new episode from the robot's new pose. Within an episode the
+        person also sees the utensil (the task's `grasp` and `release` events stand for what
+        it sees): it tries again when the utensil is not where its plan has it, from where
+        the task is:
+
+            the robot grasped the utensil by itself while the person was still reaching for
+                it: it goes on to carry (its plan's next stages wait for an open hand)
+            the hand is closed, but the utensil stayed in its holder (no grasp), and the
+                person has gone on to carry: open the hand and pick again (stage `open`)
+            the utensil left the hand before the person released it (a `release` event while
+                it picks or carries): open the hand and pick again
+            the task is not over `retry_after_s` after the person was satisfied: pick again
+                if the utensil is not in the hand, carry again if it still is
+        """
         if record.X_reset is not None and self._seen:  # not the loop's very first tick
             self.restart(record.X_reset)
+        phase = record.plant.phase
         with self._lock:
-            self._robot = record.X_current
+            op = self._op
+            op.observe(self._t, _one(record.X_current))
             self._seen = True
+            stage = self._first + int(op.stage[0])
+            dropped = grasped_for_me = False
+            for e in record.plant.events:
+                if e.kind is EventKind.GRASP:
+                    self._holding = True
+                    grasped_for_me = stage < STAGES.index("grasp")
+                elif e.kind is EventKind.RELEASE:
+                    dropped = self._holding and stage < STAGES.index("release")
+                    self._holding = False
+            if phase is Phase.DONE:
+                return
+            if (phase is Phase.PICK or not self._holding) and self._first < STAGES.index("carry"):
+                # It looks at the utensil, not at where it stood: a hand that brushed it on
+                # the way may have pushed or twisted it in its holder.
+                self._op.intention = self._intention(self._first)
+            retry: int | None = None
+            regrasp = STAGES.index("open")
+            if grasped_for_me:
+                retry = STAGES.index("carry")
+            elif not op.done[0] and (
+                dropped or (phase is Phase.PICK and stage >= STAGES.index("carry"))
+            ):
+                retry = regrasp
+            elif op.done[0]:
+                if self._done_since is None:
+                    self._done_since = self._t
+                elif self._t - self._done_since >= self.config.retry_after_s:
+                    empty = phase is Phase.PICK or not self._holding
+                    retry = regrasp if empty else STAGES.index("carry")
+            if retry is not None:
+                self._attempt += 1
+                H = op.current
+                self._op = self._person(
+                    HandState(H.position[0], H.rotation[0], H.openness[0]), self._t, retry
+                )
 
     def restart(self, start: HandState) -> None:
+        """Start over from `start` (a new episode: a fresh plan and random stream)."""
         with self._lock:
-            self._robot = self._hand = start
-            self._stage, self._corrections, self._seg = 0, 0, None
+            self._episode += 1
+            self._attempt = 0
+            self._holding = False
+            opened = HandState(start.position, start.rotation, np.ones(start.n_fingers))
+            self._op = self._person(opened, self._t, FIRST_STAGE)
 
     def hand_at(self, t_s: float) -> HandState:
-        """The operator's hand (base frame, robot fingers) at source time `t_s`."""
+        """The person's hand (base frame, robot fingers) at source time `t_s`."""
         with self._lock:
-            if self._seg is None or t_s - self._seg_t0 > float(self._seg.t_s[-1]):
-                if self._seg is not None:
-                    self._hand = _state_at(self._seg, -1)
-                self._plan(t_s)
-            assert self._seg is not None
-            k = min(round((t_s - self._seg_t0) / self.dt), len(self._seg) - 1)
-            return _state_at(self._seg, max(k, 0))
-
-    def _goal_for_stage(self) -> HandState | None:
-        pick, place = self._true_goals()
-        closed = np.full(self._hand.n_fingers, self.config.closed_openness)
-        opened = np.ones(self._hand.n_fingers)
-        stage = STAGES[self._stage]
-        if stage == "reach":
-            return HandState(pick.position, pick.rotation, opened)
-        if stage == "grasp":
-            return HandState(self._hand.position, self._hand.rotation, closed)
-        if stage == "carry":
-            return HandState(place.position, place.rotation, closed)
-        if stage == "release":
-            return HandState(self._hand.position, self._hand.rotation, opened)
-        return None
-
-    def _robot_error(self, goal: HandState) -> tuple[float, float]:
-        dp = float(np.linalg.norm(goal.position - self._robot.position))
-        dr = float(np.linalg.norm(so3_log(goal.rotation @ self._robot.rotation.T)))
-        return dp, dr
-
-    def _plan(self, t_s: float) -> None:
-        """Plan the next movement from the hand's current state."""
-        goal = self._goal_for_stage()
-        if goal is not None and STAGES[self._stage] in ("reach", "carry") and self._seg is not None:
-            dp, dr = self._robot_error(goal)
-            ok = dp <= self.config.tolerance_m and dr <= self.config.tolerance_rad
-            if ok or self._corrections >= self.config.max_corrections:
-                self._stage += 1
-                self._corrections = 0
-                goal = self._goal_for_stage()
-            else:
-                # Move the hand by what the robot still lacks.
-                self._corrections += 1
-                R_err = goal.rotation @ self._robot.rotation.T
-                goal = HandState(
-                    self._hand.position + (goal.position - self._robot.position),
-                    R_err @ self._hand.rotation,
-                    goal.openness,
-                )
-        elif self._seg is not None and STAGES[self._stage] in ("grasp", "release"):
-            self._stage += 1
-            goal = self._goal_for_stage()
-        if goal is None:  # done: hold still
-            goal = self._hand
-        # Closing or opening the hand alone: the fingers move over most of the movement.
-        hand_only = STAGES[self._stage] in ("grasp", "release")
-        strategy = self._hand_strategy if hand_only else self.strategy
-        self._seg = sample_trajectory(self._hand, goal, self.dt, self._rng, strategy)
-        self._seg_t0 = t_s
+            self._t = max(self._t, float(t_s))
+            H = self._op.hand(self._t)
+            return HandState(H.position[0], H.rotation[0], H.openness[0])
 
 
-def _state_at(traj: OperatorTrajectory, k: int) -> HandState:
-    s = traj.states
-    return HandState(s.position[k], s.rotation[k], s.openness[k])
+def _one(X: HandState) -> HandState:
+    """A batch of one."""
+    return HandState(X.position[None], X.rotation[None], X.openness[None])
 
 
 def human_openness(robot_openness: Array) -> Array:

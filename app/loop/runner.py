@@ -263,7 +263,7 @@ class TeleopLoop:
         t_arb = self.clock.now()
         result = self.plant.apply(decision.X_next)
         t_cmd = self.clock.now()
-        self.state, segment_ended = tick.absorb(self.state, result)
+        self.state, segment_ended = tick.absorb(self.state, result, self.arbiter)
         if segment_ended and self._history_file is not None:
             self._history_file.save(self.state.history)
         notes = tuple(self._notes)
@@ -300,7 +300,7 @@ class TeleopLoop:
         key = (len(self.history), self.config.arbitration)
         if self._hist_key != key:
             F = len(self.plant.finger_names)
-            self._hist_term = self.history.term(F, self.config.arbitration.eps(F))
+            self._hist_term = self.history.term(F, self.config.arbitration.still_offset(F))
             self._hist_key = key
         return self._hist_term
 

@@ -15,7 +15,8 @@ A tick has two halves around the robot (`runner.TeleopLoop` calls them and the p
     plant.apply(X_next)
     absorb(state', plant_step)  ->  state'', segment ended?
         the achieved state, the outcome, and at the end of a pick or place segment: one more
-        attempt in the operator history (eq 6), new start states for both agents
+        attempt in the operator history (eq 6), new start states for both agents, fresh DS
+        windows (B restarts at 1 for each goal)
 
 Input age is measured on the loop's clock from the capture time, less the injected delay.
 When the hand comes back after a loss (or first appears), the caller re-anchors the mapping
@@ -221,7 +222,7 @@ def _assist(
     return step.U_robot * cfg.assist_speed, step
 
 
-def absorb(state: LoopState, result: PlantStep) -> tuple[LoopState, bool]:
+def absorb(state: LoopState, result: PlantStep, arbiter: Arbiter) -> tuple[LoopState, bool]:
     """The second half of a tick: the robot's report. Returns the state and whether a
     segment ended (the place goal became active, or the outcome was decided)."""
     new = replace(state, X_prev=state.X_current, X_current=result.X_current)
@@ -232,15 +233,20 @@ def absorb(state: LoopState, result: PlantStep) -> tuple[LoopState, bool]:
     elif result.segment_changed:
         ended = True
     if ended:
-        new = _end_segment(new)
+        new = _end_segment(new, arbiter)
     return new, ended
 
 
-def _end_segment(state: LoopState) -> LoopState:
-    """A pick or place segment ended: remember the attempt, restart the segment."""
+def _end_segment(state: LoopState, arbiter: Arbiter) -> LoopState:
+    """A pick or place segment ended: remember the attempt, restart the segment: both
+    agents' start states, and the DS windows (B back to 1 for the new goal)."""
     history = state.history
     if state.X_human_start is not None and state.X_human_last is not None:
         history = history.add(state.X_human_start, state.X_human_last)
     return replace(
-        state, history=history, X_start=state.X_current, X_human_start=state.X_human_last
+        state,
+        history=history,
+        X_start=state.X_current,
+        X_human_start=state.X_human_last,
+        filter=arbiter.initial_state(6 + state.X_current.n_fingers),
     )

@@ -115,11 +115,13 @@ class KitchenPlant:
     # --- for the demo operator ----------------------------------------------------------
 
     def true_goals(self) -> tuple[HandState, HandState]:
-        """The true pick and place palm poses (open hand), noise-free."""
+        """The true pick and place palm poses (open hand), noise-free, as a person watching
+        the scene sees them: the pick is the grasp pose of the utensil where it is now (the
+        task's `pick_true` until the utensil moves, e.g. pushed by a failed grasp)."""
         task = self.env.task
         n = len(FINGER_NAMES)
         return (
-            HandState(*task.pick_true, np.ones(n)),
+            HandState(*self.env.grasp_pose(), np.ones(n)),
             HandState(*task.place_true, np.ones(n)),
         )
 

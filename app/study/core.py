@@ -2,28 +2,39 @@
 
 World (docs/METHOD.md, docs/sim.md): a planar task with three DOF, x, y [m] and heading
 [rad], embedded in the 6 + F arbitration with z = 0, roll = pitch = 0 and F = 0 fingers. The
-hand starts at `start` and reaches for an object's handle at `handle_xy_m`, whose grasp normal
-is `handle_normal_rad`. For trajectory n (seeded by (seed, n) alone, so results do not
-depend on batching or workers):
+hand starts where the robot starts and reaches for an object's handle at `handle_xy_m`, whose
+grasp normal is `handle_normal_rad`. For trajectory n (seeded by (seed, n) alone, so results
+do not depend on batching or workers):
 
-    operator goal    handle position, heading = normal (`aligned` operator) or
-                     normal - offset, offset ~ U(side_offset_rad) (`side` operator: agrees on
-                     position, prefers to grasp the handle from the side)
-    operator         app.operator.open_loop.sample_trajectory (open loop, y before x, ...)
     robot goal       handle position + N(0, goal_sigma_m^2 I_2), heading = normal +
-                     N(0, goal_heading_sigma_rad^2)
+                     N(0, goal_heading_sigma_rad^2) (the same draws for every operator kind)
     robot            X_{k+1} = integrate(X_k, U_out_k, dt), eq (1)-(2), U_human_k from the
                      hand's motion H_k -> H_{k+1}, under each mode (S, DS, manual,
-                     autonomous) with the same operator sample and goal noise (paired)
+                     autonomous) with the same operator and goal noise (paired)
 
-The trial lasts as long as the operator's trajectory (L ticks). Success: the robot's final
-pose is within `success_radius_m` of the handle position and within `success_heading_rad` of
-the normal. Completion time: the time from which the robot stays in that region to the end
-(its settling time), or the whole trial, (L - 1) dt, on failure.
+Operators:
+
+    closed-loop      (the default) `app.operator.closed_loop`: watches the robot with a
+                     delay and steers it to the TRUE handle, with its own preferred grasp
+                     heading (normal - U(side_offset_rad)), y first with probability 0.8,
+                     the heading turning only near the handle; the trial ends when it is
+                     satisfied and holds, or gives up (patience), or after max_trial_s
+    side, aligned    open loop (`app.operator.open_loop`): a sampled trajectory that does not
+                     watch the robot, to the handle with heading normal - U(side_offset_rad)
+                     (side) or the normal (aligned); the trial lasts as long as it
+    deviate          open loop, the paper's Fig. 6 story: starting at the normal's heading
+                     (close to the goal early) and deviating late by U(deviate_rad)
+
+Success: the robot's final pose is within `success_radius_m` of the TRUE handle position
+and within `success_heading_rad` of the normal. Time: the trial's duration for the closed-loop
+operator (it decides when it is done); for an open-loop one, the time from which the robot
+stays in the success region to the end (its settling time), or the whole trial on failure.
 
 Per trajectory the metrics of Section IV-D (dsteleop.arbitration.metrics) are taken over the
 actions of the trial: cosine distance (mean per action) and ratio of agreement of U_human vs
-U_out, in the arbitration's units (m/s, rad/s).
+U_out; the paper's literal definitions in the arbitration's units (m/s, rad/s) are the
+headline, and `metric_variants` adds actions over the velocity limits, per group, by phase and
+a labelled dead-band variant.
 """
 
 from __future__ import annotations
@@ -37,6 +48,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from dsteleop.app.operator.closed_loop import ClosedLoopOperator, Intention, OperatorProfile
 from dsteleop.app.operator.open_loop import (
     OperatorStrategy,
     OperatorTrajectory,
@@ -51,6 +63,7 @@ from dsteleop.arbitration import (
     ArbitrationStep,
     HandState,
     Mode,
+    RowModes,
     dim_names,
     make_arbiter,
     metrics,
@@ -61,10 +74,12 @@ from dsteleop.errors import ConfigError
 from dsteleop.robot.task import Phase
 
 Array = NDArray[np.float64]
-OperatorKind = Literal["side", "aligned"]
-OPERATORS: tuple[str, ...] = ("side", "aligned")
+OperatorKind = Literal["closed-loop", "side", "aligned", "deviate"]
+OPERATORS: tuple[str, ...] = ("closed-loop", "side", "aligned", "deviate")
+OPEN_LOOP: tuple[str, ...] = ("side", "aligned", "deviate")
 ALL_MODES: tuple[Mode, ...] = (Mode.S, Mode.DS, Mode.MANUAL, Mode.AUTONOMOUS)
-SCHEMA = "dsteleop.sim_summary/1"
+SCHEMA = "dsteleop.sim_summary/2"
+DEAD_BAND_MPS = 0.001  # the dead-band variant skips output actions slower than this [m/s]
 HIST_BINS = 16
 PATH_STRIDE = 3  # keep every 3rd tick of the example paths (Fig. 5b)
 PHASE_EDGES = np.linspace(0.0, 1.0, 11)  # deciles of each trial for the by-phase metrics
@@ -88,7 +103,8 @@ class SimConfig:
     Attributes:
         trajectories: number of operator trajectories, >= 1.
         seed: master seed; trajectory n uses the generator seeded with (seed, n).
-        operator: `side` (the paper's scenario) or `aligned` (agrees on every dimension).
+        operator: `closed-loop` (watches the robot; the default), or open loop: `side` (the
+            paper's scenario), `aligned` (agrees on every dimension), `deviate` (Fig. 6).
         modes: arbitration modes, each run on every trajectory.
         dt_s: tick [s].
         start_xy_m: start position [m]; start heading `start_heading_rad` [rad].
@@ -98,7 +114,16 @@ class SimConfig:
         success_heading_rad: delta of the success test [rad].
         goal_sigma_m: standard deviation of the robot's goal position per axis [m].
         goal_heading_sigma_rad: standard deviation of the robot's goal heading [rad].
-        side_offset_rad: interval of the side operator's heading offset from the normal [rad].
+        side_offset_rad: interval of the side (and closed-loop) operator's heading offset from
+            the normal [rad]: it prefers to grasp the handle a little from the side.
+        deviate_rad: interval of the deviate operator's late heading deviation [rad].
+        operator_tolerance_m: the closed-loop operator is satisfied within this of its
+            target [m] (half the success radius: a person aims tighter than the task needs).
+        operator_tolerance_rad: ... and within this of its own heading [rad].
+        lead_probability: share of operators who move along y before x.
+        max_trial_s: a closed-loop trial ends after this long in any case [s].
+        profile: the closed-loop person (None: `OperatorProfile()` capped at the robot's
+            velocity limits).
         example: index of the trajectory drawn in the per-trajectory figures; None picks
             the first one that moves y before x.
         max_paths: trajectories whose paths are kept for the distribution figure.
@@ -108,7 +133,7 @@ class SimConfig:
 
     trajectories: int = 1000
     seed: int = 0
-    operator: OperatorKind = "side"
+    operator: OperatorKind = "closed-loop"
     modes: tuple[Mode, ...] = ALL_MODES
     dt_s: float = 1.0 / 30.0
     start_xy_m: tuple[float, float] = (0.0, 0.0)
@@ -120,6 +145,12 @@ class SimConfig:
     goal_sigma_m: float = 0.02
     goal_heading_sigma_rad: float = 0.0
     side_offset_rad: tuple[float, float] = (0.15, 0.30)
+    deviate_rad: tuple[float, float] = (0.5, 0.8)
+    operator_tolerance_m: float = 0.015
+    operator_tolerance_rad: float = 0.1
+    lead_probability: float = 0.8
+    max_trial_s: float = 60.0
+    profile: OperatorProfile | None = None
     example: int | None = None
     max_paths: int = 200
     arbitration: ArbitrationConfig = field(default_factory=ArbitrationConfig)
@@ -133,10 +164,15 @@ class SimConfig:
         if self.seed < 0:
             raise ConfigError(f"seed must be >= 0, got {self.seed}")
         if self.operator not in OPERATORS:
-            raise ConfigError(f"unknown operator {self.operator!r} (choose from side, aligned)")
+            raise ConfigError(
+                f"unknown operator {self.operator!r} (choose from {', '.join(OPERATORS)})"
+            )
         if not self.modes or len(set(self.modes)) != len(self.modes):
             raise ConfigError("modes must be a non-empty list without repeats")
-        for name in ("dt_s", "success_radius_m", "success_heading_rad"):
+        for name in (
+            "dt_s", "success_radius_m", "success_heading_rad", "operator_tolerance_m",
+            "operator_tolerance_rad", "max_trial_s",
+        ):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"{name} must be finite and > 0, got {v!r}")
@@ -156,7 +192,28 @@ class SimConfig:
 
     @property
     def operator_strategy(self) -> OperatorStrategy:
-        return self.strategy or planar_strategy(self.arbitration)
+        if self.strategy is not None:
+            return self.strategy
+        base = planar_strategy(self.arbitration)
+        if self.operator == "deviate":  # the heading turns late
+            return dataclasses.replace(base, rotation_onset=(0.6, 0.8), rotation_end=(0.9, 1.0))
+        return base
+
+    @property
+    def operator_profile(self) -> OperatorProfile:
+        a = self.arbitration
+        return (self.profile or OperatorProfile()).for_robot(
+            a.v_max_mps, a.w_max_radps, a.g_max_per_s
+        )
+
+    @property
+    def closed_loop(self) -> bool:
+        return self.operator == "closed-loop"
+
+    @property
+    def start_heading(self) -> float:
+        """The start heading: the normal's for the deviate operator (close early)."""
+        return self.handle_normal_rad if self.operator == "deviate" else self.start_heading_rad
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-able dict (modes by name, nested configs as dicts)."""
@@ -169,6 +226,8 @@ class SimConfig:
                 v = v.to_dict()
             elif f.name == "strategy":
                 v = _jsonable(dataclasses.asdict(self.operator_strategy))
+            elif f.name == "profile":
+                v = _jsonable(dataclasses.asdict(self.operator_profile))
             elif isinstance(v, tuple):
                 v = list(v)
             out[f.name] = v
@@ -244,8 +303,9 @@ class Trial:
         return self.operator.sample.lead
 
 
-def sample_trial(cfg: SimConfig, index: int) -> Trial:
-    """Trajectory `index`: seeded by (seed, index) only."""
+def _draws(cfg: SimConfig, index: int) -> tuple[np.random.Generator, Array]:
+    """Trajectory `index`'s generator and the robot's goal, drawn first (every operator kind
+    gets the same goal noise)."""
     rng = np.random.default_rng([cfg.seed, index])
     hx, hy = cfg.handle_xy_m
     noise = rng.standard_normal(3)
@@ -256,12 +316,91 @@ def sample_trial(cfg: SimConfig, index: int) -> Trial:
             cfg.handle_normal_rad + cfg.goal_heading_sigma_rad * noise[2],
         ]
     )
-    offset = float(rng.uniform(*cfg.side_offset_rad)) if cfg.operator == "side" else 0.0
+    return rng, robot_goal
+
+
+def sample_trial(cfg: SimConfig, index: int) -> Trial:
+    """Trajectory `index` of an open-loop operator: seeded by (seed, index) only."""
+    rng, robot_goal = _draws(cfg, index)
+    hx, hy = cfg.handle_xy_m
+    offset = 0.0
+    if cfg.operator in ("side", "closed-loop"):
+        offset = float(rng.uniform(*cfg.side_offset_rad))
+    elif cfg.operator == "deviate":
+        offset = -float(rng.uniform(*cfg.deviate_rad))
     op_goal = np.array([hx, hy, cfg.handle_normal_rad - offset])
-    start = planar_state(*cfg.start_xy_m, cfg.start_heading_rad)  # type: ignore[arg-type]
+    start = planar_state(*cfg.start_xy_m, cfg.start_heading)  # type: ignore[arg-type]
     goal = planar_state(*op_goal)
     tr = sample_trajectory(start, goal, cfg.dt_s, rng, cfg.operator_strategy)
     return Trial(index, tr, robot_goal, op_goal)
+
+
+@dataclass(frozen=True)
+class ClosedTrial:
+    """The random part of one closed-loop trajectory.
+
+    Attributes:
+        index: trajectory index n.
+        robot_goal: (3,) x [m], y [m], heading [rad] the robot aims for (noisy).
+        operator_goal: (3,) the operator's own target: the true handle, its heading.
+        lead: the operator moves along y before x.
+        turn_within_m: it turns the heading only within this of the handle [m].
+        seed: the seed of its own generator (the same in every mode: paired).
+    """
+
+    index: int
+    robot_goal: Array
+    operator_goal: Array
+    lead: bool
+    turn_within_m: float
+    seed: tuple[int, int, int]
+
+
+def sample_closed_trial(cfg: SimConfig, index: int) -> ClosedTrial:
+    """Trajectory `index` of the closed-loop operator: seeded by (seed, index) only."""
+    rng, robot_goal = _draws(cfg, index)
+    hx, hy = cfg.handle_xy_m
+    offset = float(rng.uniform(*cfg.side_offset_rad))
+    lead = bool(rng.random() < cfg.lead_probability)
+    turn_within = float(rng.uniform(0.05, 0.15))
+    op_goal = np.array([hx, hy, cfg.handle_normal_rad - offset])
+    return ClosedTrial(index, robot_goal, op_goal, lead, turn_within, (cfg.seed, index, 1))
+
+
+def closed_operator(cfg: SimConfig, trials: Sequence[ClosedTrial]) -> ClosedLoopOperator:
+    """The operators of `trials`, fresh (each mode starts them from the same state)."""
+    N = len(trials)
+    sx, sy = cfg.start_xy_m
+    h0 = cfg.start_heading
+    goals = np.stack([t.operator_goal for t in trials])
+    lead = np.array([t.lead for t in trials])
+    # Stage 0: along y first (to the handle's y, the start's x and heading) when leading;
+    # stage 1: the handle itself, with the operator's own heading.
+    via = np.stack([np.full(N, sx), goals[:, 1], np.full(N, h0)], -1)
+    first = np.where(lead[:, None], via, goals)
+    targets = planar_state(
+        np.stack([first[:, 0], goals[:, 0]], 1),
+        np.stack([first[:, 1], goals[:, 1]], 1),
+        np.stack([first[:, 2], goals[:, 2]], 1),
+    )
+    final = (cfg.operator_tolerance_m, cfg.operator_tolerance_rad, 1.0)
+    passing = (0.05, math.pi, 1.0)  # a via point: near it in position, any heading
+    tolerance = np.stack(
+        [np.where(lead[:, None], passing, final), np.broadcast_to(final, (N, 3))], 1
+    )
+    # The via stage counts y only: the operator brings the robot to the handle's y first,
+    # whatever x the robot has meanwhile.
+    # The task's dimensions are x, y and the heading (z, roll, pitch never count).
+    y_only = np.array([0.0, 1.0, 0.0, 0.0, 0.0, 0.0])
+    planar = np.array([1.0, 1.0, 0.0, 0.0, 0.0, 1.0])
+    mask = np.stack([np.where(lead[:, None], y_only, planar), np.tile(planar, (N, 1))], 1)
+    intention = Intention(
+        targets, tolerance, mask, np.where(lead, 2, 1).astype(np.int64),
+        np.array([t.turn_within_m for t in trials]),
+    )  # fmt: skip
+    start = planar_state(np.full(N, sx), np.full(N, sy), np.full(N, h0))
+    rngs = [np.random.default_rng(t.seed) for t in trials]
+    return ClosedLoopOperator(intention, start, cfg.operator_profile, rngs)
 
 
 @dataclass(frozen=True)
@@ -280,6 +419,11 @@ class ModeResult:
     phase_cos: Array  # (N, 2, bins) sum and count of the cosine distance per phase bin
     phase_agree: Array  # (N, 2, bins) agreements and actions per phase bin
     y_only: Array  # (N, 3) sum |U_out_x|, sum |U_out_y|, actions while the operator moves y only
+    lengths: NDArray[np.int64]  # (N,) states of each trial (closed loop: mode-dependent)
+    gave_up: NDArray[np.bool_]  # (N,) the closed-loop operator gave up (False for open loop)
+    hand_hist: NDArray[np.int64]  # the hand's (x, y, heading) histogram in this mode
+    hand_paths: Array  # (P, T', 3) the hand's paths of the first trajectories
+    variants: dict[str, Array]  # per-trajectory metric variants (`metric_variants`)
 
 
 @dataclass(frozen=True)
@@ -296,8 +440,9 @@ class ChunkResult:
 
 def first_lead_index(cfg: SimConfig) -> int:
     """The first trajectory that moves y before x (0 if none): the default example."""
+    sample = sample_closed_trial if cfg.closed_loop else sample_trial
     for i in range(cfg.trajectories):
-        if sample_trial(cfg, i).lead:
+        if sample(cfg, i).lead:
             return i
     return 0
 
@@ -308,7 +453,7 @@ def hist_ranges(cfg: SimConfig) -> Array:
     hx, hy = cfg.handle_xy_m
     m = 0.1
     h = [
-        cfg.start_heading_rad,
+        cfg.start_heading,
         cfg.handle_normal_rad,
         cfg.handle_normal_rad - cfg.side_offset_rad[1],
     ]
@@ -324,134 +469,273 @@ def hist_ranges(cfg: SimConfig) -> Array:
 def run_chunk(
     cfg: SimConfig, indices: Sequence[int], on_progress: Callable[[int], None] | None = None
 ) -> ChunkResult:
-    """Sample trajectories `indices` and run them under every mode of `cfg`, batched.
+    """Sample trajectories `indices` and run them under every mode of `cfg`, in one batch.
+
+    The batch holds one row per (mode, trajectory): every mode sees the same operator (the
+    closed-loop operators of one trajectory are copies with the same seed) and the same goal
+    noise, and the operators, the bookkeeping and the metrics are stepped once for all modes.
 
     Args:
         cfg: the study.
         indices: trajectory indices.
-        on_progress: called with a count of trajectory-modes done (for a progress bar).
+        on_progress: called with counts of trajectory-modes done (for a progress bar).
     """
     idx = np.asarray(indices, dtype=np.int64)
-    trials = [sample_trial(cfg, int(i)) for i in idx]
-    hands, lengths = stack([t.operator for t in trials])
     ranges = hist_ranges(cfg)
-    pose_h = np.concatenate(
-        [hands.position[..., :2], heading_of(hands.rotation)[..., None]], axis=-1
-    )
-    valid = np.arange(pose_h.shape[1])[None, :] < lengths[:, None]
     n_paths = int(np.clip(cfg.max_paths - idx[0], 0, len(idx))) if len(idx) else 0
-    op_hist = metrics.trajectory_histogram(pose_h[valid], HIST_BINS, ranges)
-    op_paths = _paths(pose_h[:n_paths], lengths[:n_paths])
+    goals, lead, hands = _hands_for(cfg, idx, len(cfg.modes))
+    modes = _run_modes(cfg, cfg.modes, hands, goals, ranges, n_paths, on_progress)
+    first = modes[cfg.modes[0].value]
+    return ChunkResult(idx, first.lengths, lead, first.hand_hist, first.hand_paths, modes)
+
+
+def _hands_for(
+    cfg: SimConfig, idx: NDArray[np.int64], copies: int
+) -> tuple[Array, NDArray[np.bool_], _Hands]:
+    """The robot goals (N, 3), lead flags (N,) and the hands of `copies` x N rows (one block
+    of N per mode) of trajectories `idx`."""
+    if cfg.closed_loop:
+        closed = [sample_closed_trial(cfg, int(i)) for i in idx]
+        goals = np.stack([t.robot_goal for t in closed])
+        lead = np.array([t.lead for t in closed], dtype=bool)
+        T = round(cfg.max_trial_s / cfg.dt_s) + 1
+        return goals, lead, _ClosedHands(closed_operator(cfg, closed * copies), T)
+    trials = [sample_trial(cfg, int(i)) for i in idx]
+    stacked, lengths = stack([t.operator for t in trials])
     goals = np.stack([t.robot_goal for t in trials])
-    hands_tm = _time_major(hands)
-    modes: dict[str, ModeResult] = {}
-    for mode in cfg.modes:
-        modes[mode.value] = _run_mode(cfg, mode, hands_tm, lengths, goals, ranges, n_paths)
-        if on_progress is not None:
-            on_progress(len(idx))
     lead = np.array([t.lead for t in trials], dtype=bool)
-    return ChunkResult(idx, lengths, lead, op_hist, op_paths, modes)
+    return goals, lead, _OpenHands(_time_major(stacked), lengths, copies)
 
 
-def trace(cfg: SimConfig, index: int, mode: Mode) -> Trace:
-    """Run one trajectory under one mode and keep every tick: T = L - 1 ticks of a trial of
-    L states (tick k takes the robot from state k to state k + 1, at time t_{k+1})."""
-    trial = sample_trial(cfg, index)
-    hands, lengths = stack([trial.operator])
-    goals = trial.robot_goal[None]
+@dataclass(frozen=True)
+class Example:
+    """One trajectory under one mode, every tick kept (the per-trajectory figures).
+
+    Attributes:
+        trace: the ticks as a replay trace: T = L - 1 ticks of a trial of L states (tick k
+            takes the robot from state k to state k + 1, at time t_{k+1}).
+        t_s: (L,) the states' times [s].
+        hand: (L, 3) the hand's x, y, heading (closed loop: in this mode).
+        robot: (L, 3) the robot's x, y, heading.
+    """
+
+    trace: Trace
+    t_s: Array
+    hand: Array
+    robot: Array
+
+
+def example(cfg: SimConfig, index: int, mode: Mode) -> Example:
+    """Run trajectory `index` under `mode` alone and keep every tick."""
+    goals, _, source = _hands_for(cfg, np.array([index]), 1)
+    goal = goals[0]
     steps: list[ArbitrationStep] = []
-    robot = _simulate(cfg, mode, _time_major(hands), lengths, goals, steps)
-    L = int(lengths[0])
+    robot, L_all, hand = _simulate(cfg, (mode,), source, goals, record=steps)
+    L = int(L_all[0])
     first = steps[: L - 1]
     step = ArbitrationStep(
         **{k: np.stack([getattr(s, k)[0] for s in first]) for k in STEP_ARRAYS},
         X_next=stack_states([s.X_next.take(0) for s in first]),
     )
-    v_max = cfg.arbitration.v_max(0)
-    return Trace(
+    t = np.arange(L) * cfg.dt_s
+    tr = Trace(
         name=f"trajectory {index}",
         mode=mode,
         dims=dim_names(0),
-        t_s=trial.t_s[1:L],
+        t_s=t[1:],
         arbitrated=np.ones(L - 1, dtype=bool),
         step=step,
-        p_human=trial.hand.position[1:L],
+        p_human=np.concatenate([hand[0, 1:L, :2], np.zeros((L - 1, 1))], -1),
         p_robot=np.concatenate([robot[0, 1:L, :2], np.zeros((L - 1, 1))], -1),
-        p_goal=np.tile([*trial.robot_goal[:2], 0.0], (L - 1, 1)),
+        p_goal=np.tile([*goal[:2], 0.0], (L - 1, 1)),
         phases=(Phase.PICK,) * (L - 1),
         outcome=None,
-        time_s=float(trial.t_s[L - 1]),
-        v_max=v_max,
+        time_s=float((L - 1) * cfg.dt_s),
+        v_max=cfg.arbitration.v_max(0),
     )
+    return Example(tr, t, hand[0, :L], robot[0, :L])
+
+
+def trace(cfg: SimConfig, index: int, mode: Mode) -> Trace:
+    """Run one trajectory under one mode and keep every tick (`Example.trace`)."""
+    return example(cfg, index, mode).trace
+
+
+class _Hands:
+    """Where a simulation's hands come from, tick by tick (open or closed loop), for C x N
+    rows: C copies (one per mode) of N trajectories, row j = c N + n."""
+
+    T: int  # the most states a trial can have
+    lengths: NDArray[np.int64]  # (C N,) states of each trial (closed loop: T until it ends)
+    gave_up: NDArray[np.bool_]  # (C N,) the operator gave up (closed loop)
+
+    def start(self) -> HandState:
+        raise NotImplementedError
+
+    def next(self, k: int, t_s: float) -> tuple[HandState, HandState]:
+        """(hand at state k + 1, hand at state k) of the current rows."""
+        raise NotImplementedError
+
+    def observe(self, t_s: float, X: HandState) -> None:
+        """The robot at t_s (closed loop: what the operators see, later)."""
+
+    def ended(self, rows: NDArray[np.int64], k: int) -> None:
+        """Record which of `rows` ended their trial at state k + 1."""
+
+    def keep(self, keep: NDArray[np.bool_], k: int) -> None:
+        """Only the current rows `keep` go on after tick k."""
+        raise NotImplementedError
+
+
+class _OpenHands(_Hands):
+    """Precomputed hands, time-major (T, N, ...): the operator does not watch; every copy
+    reads the same trajectory."""
+
+    def __init__(self, hands_tm: HandState, lengths: NDArray[np.int64], copies: int) -> None:
+        self.pos, self.rot, self.opn = hands_tm.position, hands_tm.rotation, hands_tm.openness
+        N = lengths.shape[0]
+        self.lengths = np.tile(lengths, copies)
+        self.gave_up = np.zeros(copies * N, dtype=bool)
+        self.T = int(hands_tm.position.shape[0])
+        self.cols = np.tile(np.arange(N), copies)  # the trajectory of each current row
+
+    def start(self) -> HandState:
+        return self._at(0)
+
+    def _at(self, k: int) -> HandState:
+        c = self.cols
+        return HandState(self.pos[k, c], self.rot[k, c], self.opn[k, c])
+
+    def next(self, k: int, t_s: float) -> tuple[HandState, HandState]:
+        return self._at(k + 1), self._at(k)
+
+    def keep(self, keep: NDArray[np.bool_], k: int) -> None:
+        self.cols = self.cols[keep]
+
+
+class _ClosedHands(_Hands):
+    """Hands from closed-loop operators, who watch the robot (one operator per row)."""
+
+    def __init__(self, op: ClosedLoopOperator, T: int) -> None:
+        self.op = op
+        self.T = T
+        N = op.start.position.shape[0]
+        self.lengths = np.full(N, T, dtype=np.int64)
+        self.gave_up = np.zeros(N, dtype=bool)  # by original row (the operator compacts)
+        self.prev = op.start
+
+    def start(self) -> HandState:
+        return self.op.start
+
+    def next(self, k: int, t_s: float) -> tuple[HandState, HandState]:
+        H = self.op.hand(t_s)
+        prev, self.prev = self.prev, H
+        return H, prev
+
+    def observe(self, t_s: float, X: HandState) -> None:
+        self.op.observe(t_s, X)
+
+    def ended(self, rows: NDArray[np.int64], k: int) -> None:
+        newly = self.op.done & (self.lengths[rows] == self.T)
+        self.lengths[rows[newly]] = k + 2
+        self.gave_up[rows[newly]] = self.op.gave_up[newly]
+
+    def keep(self, keep: NDArray[np.bool_], k: int) -> None:
+        self.op.select(keep)
+        self.prev = self.prev.take(keep)
 
 
 def _simulate(
     cfg: SimConfig,
-    mode: Mode,
-    hands_tm: HandState,
-    lengths: NDArray[np.int64],
+    modes: Sequence[Mode],
+    hands: _Hands,
     goals: Array,
     record: list[ArbitrationStep] | None = None,
     on_step: Callable[[int, NDArray[np.int64], Array, Array], None] | None = None,
-) -> Array:
-    """Step the batch through time; returns the robot's (x, y, heading), (N, T, 3), nan past
-    the end of each trial.
+    on_progress: Callable[[int], None] | None = None,
+) -> tuple[Array, NDArray[np.int64], Array]:
+    """Step the batch of len(modes) x N rows (row j = m N + n: trajectory n under mode m)
+    through time. Returns the robot's and the hand's (x, y, heading), (C N, T, 3) each, NaN
+    past the end of each trial, and the trials' lengths (states).
 
-    Rows whose trial has ended are dropped from the batch every few ticks (the arbitration is
-    row-wise, so this changes no result, only the work). on_step(k, rows, U_human, U_out) is
-    called after tick k with the original indices of the rows whose trial includes tick k.
-    `hands_tm` is time-major: position (T, N, 3), rotation (T, N, 3, 3), openness (T, N, F).
+    One arbiter steps the mixed batch (`RowModes`). Rows whose trial has ended are
+    dropped from the batch every few ticks (the arbitration is row-wise, so this changes no
+    result, only the work). on_step(k, rows, U_human, U_out) is called after tick k with the
+    rows whose trial includes tick k; on_progress with counts of trials that ended; `record`
+    (one mode only) gets every step.
     """
-    T, N = hands_tm.position.shape[:2]
-    arb = make_arbiter(mode, cfg.arbitration)
-    state = arb.initial_state(6, batch=(N,))
+    C, N = len(modes), goals.shape[0]
+    if record is not None and C != 1:
+        raise ValueError("record needs a single mode")
+    T, J = hands.T, C * N
+    # One arbiter steps every mode's rows at once (a mixed batch: row j is in mode j // N).
+    arb = make_arbiter(modes[0], cfg.arbitration)
+    mixed = RowModes.of([m for m in modes for _ in range(N)]) if C > 1 else None
+    state = arb.initial_state(6, batch=(J,))
     X0 = planar_state(
-        np.full(N, cfg.start_xy_m[0]),
-        np.full(N, cfg.start_xy_m[1]),
-        np.full(N, cfg.start_heading_rad),
+        np.full(J, cfg.start_xy_m[0]), np.full(J, cfg.start_xy_m[1]), np.full(J, cfg.start_heading)
     )
-    G = planar_state(goals[:, 0], goals[:, 1], goals[:, 2])
-    # Time-major, so that each tick reads contiguous rows; `base` is the first tick the
-    # arrays hold (compaction keeps only the future).
-    pos, rot, opn = hands_tm.position, hands_tm.rotation, hands_tm.openness
-    base = 0
-    rows = np.arange(N)
+    g = np.tile(goals, (C, 1))
+    G = planar_state(g[:, 0], g[:, 1], g[:, 2])
+    rows = np.arange(J)
     X, Xp, X0r = X0, X0, X0
-    H0 = HandState(pos[0], rot[0], opn[0])
-    xy = np.full((T, N, 2), np.nan)
-    cs = np.full((T, N, 2), np.nan)  # cos, sin of the heading
+    H0 = hands.start()
+    # Robot and hand (x, y) and (cos, sin) of the heading per state. Uninitialised: every
+    # entry before a row's length is written (a row leaves the batch only after its trial
+    # ended), and `poses` sets the rest to NaN; untouched pages past the longest trial are
+    # never allocated.
+    xy, cs, hxy, hcs = (np.empty((T, J, 2)) for _ in range(4))
     xy[0], cs[0] = X.position[:, :2], X.rotation[:, :2, 0]
-    T_run = int(lengths.max())
-    for k in range(T_run - 1):
+    hxy[0], hcs[0] = H0.position[:, :2], H0.rotation[:, :2, 0]
+    hands.observe(0.0, X)
+    reported = 0
+    for k in range(T - 1):
         if k % 16 == 0 and k > 0:
-            keep = lengths[rows] > k + 1
+            keep = hands.lengths[rows] > k + 1
+            if on_progress is not None:
+                done = int(J - rows.size + np.count_nonzero(~keep))
+                if done > reported:
+                    on_progress(done - reported)
+                    reported = done
+            if not keep.any():
+                break
             if keep.sum() < 0.9 * rows.size:
                 rows = rows[keep]
                 state = state.select(keep)
+                mixed = None if mixed is None else mixed.select(keep)
                 X, Xp, X0r, H0, G = (h.take(keep) for h in (X, Xp, X0r, H0, G))
-                pos, rot, opn = (a[k - base :, keep] for a in (pos, rot, opn))
-                base = k
-        i = k - base
-        H = HandState(pos[i + 1], rot[i + 1], opn[i + 1])
-        Hp = HandState(pos[i], rot[i], opn[i])
+                hands.keep(keep, k)
+        t_next = (k + 1) * cfg.dt_s
+        H, Hp = hands.next(k, t_next)
+        hands.ended(rows, k)
         inp = ArbitrationInput(H, Hp, H0, X, Xp, X0r, G, cfg.dt_s)
-        state, step = arb.step(state, inp)
+        state, step = arb.step(state, inp, mixed)
         Xp, X = X, step.X_next
-        xy[k + 1, rows] = X.position[:, :2]
-        cs[k + 1, rows] = X.rotation[:, :2, 0]
+        hands.observe(t_next, X)
+        xy[k + 1, rows], cs[k + 1, rows] = X.position[:, :2], X.rotation[:, :2, 0]
+        hxy[k + 1, rows], hcs[k + 1, rows] = H.position[:, :2], H.rotation[:, :2, 0]
         if record is not None:
             record.append(step)
         if on_step is not None:
-            act = lengths[rows] > k + 1
+            act = hands.lengths[rows] > k + 1
             if act.all():
                 on_step(k, rows, step.U_human, step.U_out)
-            else:
+            elif act.any():
                 on_step(k, rows[act], step.U_human[act], step.U_out[act])
-    out = np.concatenate([xy, np.arctan2(cs[..., 1], cs[..., 0])[..., None]], -1)
-    out = np.ascontiguousarray(np.swapaxes(out, 0, 1))
+    if on_progress is not None and J > reported:
+        on_progress(J - reported)
+    lengths = np.minimum(hands.lengths, T)
+    T = int(lengths.max())  # the longest trial (closed loop: often far under the limit)
     past = np.arange(T)[None, :] >= lengths[:, None]
-    out[past] = np.nan
-    return out
+
+    def poses(p: Array, c: Array) -> Array:
+        out = np.empty((J, T, 3))
+        out[..., :2] = np.swapaxes(p[:T], 0, 1)
+        out[..., 2] = np.arctan2(c[:T, :, 1], c[:T, :, 0]).T
+        np.copyto(out, np.nan, where=past[..., None])
+        return out
+
+    return poses(xy, cs), lengths, poses(hxy, hcs)
 
 
 def _time_major(hands: HandState) -> HandState:
@@ -464,41 +748,83 @@ def _time_major(hands: HandState) -> HandState:
     )
 
 
-def _run_mode(
+def _run_modes(
     cfg: SimConfig,
-    mode: Mode,
-    hands_tm: HandState,
-    lengths: NDArray[np.int64],
+    modes: Sequence[Mode],
+    hands: _Hands,
     goals: Array,
     ranges: Array,
     n_paths: int,
-) -> ModeResult:
-    T, N = hands_tm.position.shape[:2]
+    on_progress: Callable[[int], None] | None = None,
+) -> dict[str, ModeResult]:
+    """Simulate every mode in one batch (`_simulate`), then each mode's metrics."""
+    T, N = hands.T, goals.shape[0]
+    J = len(modes) * N
     # Every action of every trial, time-major (one contiguous write per tick); the metrics
     # are computed afterwards over whole arrays with dsteleop.arbitration.metrics.
-    U_h_all = np.zeros((T - 1, N, 6))
-    U_out_all = np.zeros((T - 1, N, 6))
-    acted = np.zeros((T - 1, N), dtype=bool)
+    U_h_all = np.zeros((T - 1, J, 6))
+    U_out_all = np.zeros((T - 1, J, 6))
+    acted = np.zeros((T - 1, J), dtype=bool)
 
     def on_step(k: int, rows: NDArray[np.int64], U_h: Array, U_out: Array) -> None:
         U_h_all[k, rows] = U_h
         U_out_all[k, rows] = U_out
         acted[k, rows] = True
 
-    poses = _simulate(cfg, mode, hands_tm, lengths, goals, on_step=on_step)
-    U_h_all, U_out_all = np.swapaxes(U_h_all, 0, 1), np.swapaxes(U_out_all, 0, 1)  # (N, T-1, 6)
-    acted = acted.T
-    cos = metrics.cosine_distance(U_h_all, U_out_all, acted)
-    ag = metrics.agreement(U_h_all, U_out_all, acted)
+    poses, lengths, hand = _simulate(
+        cfg, modes, hands, goals, on_step=on_step, on_progress=on_progress
+    )
+    out = {}
+    for c, mode in enumerate(modes):
+        part = slice(c * N, (c + 1) * N)
+        L = lengths[part]
+        Tm = int(L.max())  # this mode's longest trial
+        out[mode.value] = _mode_result(
+            cfg,
+            poses[part, :Tm],
+            L,
+            hand[part, :Tm],
+            hands.gave_up[part],
+            U_h_all[: Tm - 1, part],
+            U_out_all[: Tm - 1, part],
+            acted[: Tm - 1, part],
+            ranges,
+            n_paths,
+        )
+    return out
+
+
+def _mode_result(
+    cfg: SimConfig,
+    poses: Array,
+    lengths: NDArray[np.int64],
+    hand: Array,
+    gave_up: NDArray[np.bool_],
+    U_h_tm: Array,
+    U_out_tm: Array,
+    acted_tm: NDArray[np.bool_],
+    ranges: Array,
+    n_paths: int,
+) -> ModeResult:
+    """One mode's per-trajectory results from its states (N, T, 3) and its actions,
+    time-major (T - 1, N, ...)."""
+    N, T = poses.shape[:2]
+    # (N, T - 1, ...) views: the metrics reduce over the time axis wherever it lies in memory.
+    U_h_all, U_out_all = np.swapaxes(U_h_tm, 0, 1), np.swapaxes(U_out_tm, 0, 1)
+    acted = acted_tm.T
+    # The literal definitions (the headline), from the actions' products, computed once.
+    lit = metrics.ActionProducts.of(U_h_all, U_out_all)
+    c = metrics.cosine_distances(lit)
+    cos = metrics.summarise_cosines(c, acted)
+    ag = metrics.agreement_of(lit, acted)
     # By phase of the trial: tick k of a trial of L ticks is at phase k / (L - 1).
     n_bins = len(PHASE_EDGES) - 1
     k = np.arange(T - 1)[None, :]
     phase = k / (lengths[:, None] - 1)
     b = np.clip(np.searchsorted(PHASE_EDGES, phase, side="right") - 1, 0, n_bins - 1)
-    c = metrics.action_cosine_distance(U_h_all, U_out_all)
     counted = acted & ~np.isnan(c)
-    moving = acted & (np.linalg.norm(U_h_all, axis=-1) > 1e-9)
-    agrees = moving & (np.einsum("ntd,ntd->nt", U_h_all, U_out_all) > 0.0)
+    moving = acted & (lit.hh > 1e-18)
+    agrees = moving & (lit.dot > 0.0)
     # Per trajectory (N, 2, bins), so pooled sums do not depend on how rows were chunked.
     cos_bins = _bin_sum(b, np.where(counted, c, 0.0), n_bins)
     ph_cos = np.stack([cos_bins, _bin_sum(b, counted, n_bins)], 1)
@@ -515,7 +841,6 @@ def _run_mode(
         ],
         -1,
     )
-    T = poses.shape[1]
     valid = np.arange(T)[None, :] < lengths[:, None]
     inside = in_success_region(
         poses[..., :2],
@@ -528,11 +853,14 @@ def _run_mode(
     rows = np.arange(N)
     last = lengths - 1
     success = inside[rows, last]
-    # Settling time: the first tick after the last one outside the region.
-    outside = valid & ~inside
-    last_out = np.where(outside.any(1), T - 1 - np.argmax(outside[:, ::-1], axis=1), -1)
-    settle = (last_out + 1) * cfg.dt_s
-    time_s = np.where(success, np.maximum(settle, cfg.dt_s), last * cfg.dt_s)
+    if cfg.closed_loop:  # the operator decides when the trial is done
+        time_s = np.maximum(last, 1) * cfg.dt_s
+    else:  # settling time: the first tick after the last one outside the region
+        outside = valid & ~inside
+        last_out = np.where(outside.any(1), T - 1 - np.argmax(outside[:, ::-1], axis=1), -1)
+        settle = (last_out + 1) * cfg.dt_s
+        time_s = np.where(success, np.maximum(settle, cfg.dt_s), last * cfg.dt_s)
+    hand_valid = valid & np.isfinite(hand[..., 0])
     return ModeResult(
         success=success,
         time_s=time_s,
@@ -546,7 +874,53 @@ def _run_mode(
         phase_cos=ph_cos,
         phase_agree=ph_ag,
         y_only=cross,
+        lengths=lengths,
+        gave_up=gave_up,
+        hand_hist=metrics.trajectory_histogram(hand[hand_valid], HIST_BINS, ranges),
+        hand_paths=_paths(hand[:n_paths], lengths[:n_paths]),
+        variants=_variants(cfg, U_h_all, U_out_all, acted, lit, c),
     )
+
+
+VARIANTS = {
+    "normalised": "actions divided by the velocity limits (metres and radians weigh alike)",
+    "translation": "the translation group only (x, y; m/s)",
+    "rotation": "the rotation group only (heading; rad/s)",
+    "dead_band": (
+        "LABELLED VARIANT: the literal definitions, skipping actions where the robot's output "
+        "is under 1 mm/s and 1 mrad/s (a parked robot copying a vanishing share of the hand "
+        "no longer counts as agreeing)"
+    ),
+}
+
+
+def _variants(
+    cfg: SimConfig,
+    U_h: Array,
+    U_out: Array,
+    acted: NDArray[np.bool_],
+    literal: metrics.ActionProducts,
+    literal_cos: Array,
+) -> dict[str, Array]:
+    """Per-trajectory cosine distance and agreement under the definitions of VARIANTS; each
+    is the literal metric on re-weighted dimensions or a narrower set of actions."""
+    v_max = cfg.arbitration.v_max(0)
+    trans = metrics.ActionProducts.of(U_h, U_out, [1.0, 1.0, 1.0, 0.0, 0.0, 0.0])
+    rot = metrics.ActionProducts.of(U_h, U_out, [0.0, 0.0, 0.0, 1.0, 1.0, 1.0])
+    norm = metrics.ActionProducts.of(U_h, U_out, 1.0 / (v_max * v_max))
+    # The output under 1 mm/s and 1 mrad/s (the planar robot turns about z only).
+    still = (trans.oo < DEAD_BAND_MPS**2) & (rot.oo < DEAD_BAND_MPS**2)
+    out: dict[str, Array] = {}
+    for name, p, c, mask in (
+        ("normalised", norm, None, acted),
+        ("translation", trans, None, acted),
+        ("rotation", rot, None, acted),
+        ("dead_band", literal, literal_cos, acted & ~still),
+    ):
+        cos = metrics.cosine_distances(p) if c is None else c
+        out[f"{name}.cosine_distance"] = metrics.summarise_cosines(cos, mask).mean
+        out[f"{name}.agreement"] = metrics.agreement_of(p, mask).ratio
+    return out
 
 
 def _bin_sum(bins: NDArray[np.intp], weights: NDArray[np.float64 | np.bool_], n_bins: int) -> Array:
@@ -614,6 +988,11 @@ def merge(cfg: SimConfig, chunks: Sequence[ChunkResult]) -> StudyResult:
             phase_cos=np.concatenate([p.phase_cos for p in parts]),
             phase_agree=np.concatenate([p.phase_agree for p in parts]),
             y_only=np.concatenate([p.y_only for p in parts]),
+            lengths=np.concatenate([p.lengths for p in parts]),
+            gave_up=np.concatenate([p.gave_up for p in parts]),
+            hand_hist=np.sum([p.hand_hist for p in parts], axis=0),
+            hand_paths=cat_paths([p.hand_paths for p in parts]),
+            variants={k: cat([p.variants[k] for p in parts]) for k in parts[0].variants},
         )
     return StudyResult(
         config=cfg,
@@ -625,8 +1004,54 @@ def merge(cfg: SimConfig, chunks: Sequence[ChunkResult]) -> StudyResult:
     )
 
 
-def summarise(res: StudyResult) -> dict[str, Any]:
-    """The summary.json object: per mode metrics, S vs DS tests, divergences, config."""
+FIGURE_OPERATOR: OperatorKind = "side"
+FIGURE_MODES: tuple[Mode, ...] = (Mode.S, Mode.DS)
+
+
+def figure_study(cfg: SimConfig) -> SimConfig:
+    """The study behind Fig. 5/6 and the x-per-y remark: as in the paper, an operator who
+    does not watch the robot. `cfg` itself when its operator is open loop; otherwise the
+    paper's scenario (the `side` operator), S and DS, on the first `max_paths` trajectories
+    (the ones Fig. 5b draws; more if the example is beyond them) with the same seed."""
+    if not cfg.closed_loop:
+        return cfg
+    wanted = max(cfg.max_paths, 1 if cfg.example is None else cfg.example + 1)
+    n = min(cfg.trajectories, wanted)
+    return dataclasses.replace(cfg, operator=FIGURE_OPERATOR, modes=FIGURE_MODES, trajectories=n)
+
+
+def fig5_remark(res: StudyResult) -> dict[str, Any]:
+    """The paper's Fig. 5 remark, measured: while the operator moves along y only, how much
+    x the output adds per unit of y (sum |U_out,x| / sum |U_out,y| per trajectory), S vs DS,
+    with the paired test (S minus DS)."""
+    cfg = res.config
+    out: dict[str, Any] = {
+        "operator": cfg.operator,
+        "trajectories": cfg.trajectories,
+        "claim": (
+            "paper Fig. 5/6: while the operator moves along y, S forces motion along x and DS "
+            "keeps alpha_x low"
+        ),
+    }
+    for name in ("S", "DS"):
+        if name in res.modes:
+            r = res.modes[name]
+            out[name] = {
+                "pooled": _safe_ratio(r.y_only[:, 0].sum(), r.y_only[:, 1].sum()),
+                **_mean_ci(x_per_y(r)),
+            }
+    if "S" in res.modes and "DS" in res.modes:
+        a, b = x_per_y(res.modes["S"]), x_per_y(res.modes["DS"])
+        ok = np.isfinite(a) & np.isfinite(b)
+        if ok.sum() >= 2:
+            out["paired_t_S_minus_DS"] = dataclasses.asdict(metrics.paired_t_test(a[ok], b[ok]))
+    return out
+
+
+def summarise(res: StudyResult, figures: StudyResult | None = None) -> dict[str, Any]:
+    """The summary.json object: per mode metrics, S vs DS tests, divergences, config, and
+    the Fig. 5 remark from `figures` (the open-loop companion, `figure_study`; `res` itself
+    when None)."""
     cfg = res.config
     modes: dict[str, Any] = {}
     for name, r in res.modes.items():
@@ -656,6 +1081,8 @@ def summarise(res: StudyResult) -> dict[str, Any]:
                 "pooled": _safe_ratio(r.y_only[:, 0].sum(), r.y_only[:, 1].sum()),
                 **_mean_ci(x_per_y(r)),
             },
+            "gave_up_share": float(r.gave_up.mean()),
+            "metric_variants": _metric_variants(r),
         }
     out: dict[str, Any] = {
         "schema": SCHEMA,
@@ -666,13 +1093,47 @@ def summarise(res: StudyResult) -> dict[str, Any]:
         "divergence": _divergences(res),
         "operator": {
             "kind": cfg.operator,
+            "closed_loop": cfg.closed_loop,
             "lead_share": float(res.lead.mean()),
-            "trial_s": _describe(res.lengths * cfg.dt_s),
+            "trial_s": {
+                name: _describe((r.lengths - 1) * cfg.dt_s) for name, r in res.modes.items()
+            },
         },
         "config": cfg.to_dict(),
+        "fig5_fig6": fig5_remark(figures or res),
     }
     if "S" in res.modes and "DS" in res.modes:
         out["tests"]["S_vs_DS"] = compare(res.modes["S"], res.modes["DS"])
+    return out
+
+
+def _metric_variants(r: ModeResult) -> dict[str, Any]:
+    """`metric_variants` of one mode: the headline definitions and the others (see
+    `_variants`), each the mean over trajectories with its 95 % interval."""
+    out: dict[str, Any] = {
+        "literal": {
+            "about": "the paper's definitions on U in m/s and rad/s (the headline numbers)",
+            "cosine_distance": _mean_ci(r.cosine_mean),
+            "agreement": _mean_ci(r.agreement),
+        }
+    }
+    for name, about in VARIANTS.items():
+        out[name] = {
+            "about": about,
+            "cosine_distance": _mean_ci(r.variants[f"{name}.cosine_distance"]),
+            "agreement": _mean_ci(r.variants[f"{name}.agreement"]),
+        }
+    out["fingers"] = {
+        "about": "the planar study has no fingers",
+        "cosine_distance": None,
+        "agreement": None,
+    }
+    out["by_phase"] = {
+        "about": "pooled over trajectories per decile of each trial's duration",
+        "edges": PHASE_EDGES.tolist(),
+        "cosine_distance": _ratio(*r.phase_cos.sum(0)),
+        "agreement": _ratio(*r.phase_agree.sum(0)),
+    }
     return out
 
 

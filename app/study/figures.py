@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from dsteleop.app.study.core import SimConfig, StudyResult, heading_of, sample_trial, trace
+from dsteleop.app.study.core import SimConfig, StudyResult, example
 
 DPI = 100
 FIGURES = ("fig5b_distributions.png", "fig5c_heading.png", "fig5d_xy.png", "fig6_alpha.png")
@@ -52,7 +52,10 @@ def write_distribution_figure(result: StudyResult, out: Path) -> str:
         ax.autoscale_view()
         ax.plot([sx], [sy], "ks", ms=7, label="start")
         ax.plot([hx], [hy], marker="*", color="k", ms=12, ls="", label="handle")
-        ax.set_title(f"{name} ({len(paths)} trajectories)")
+        title = f"{name} ({len(paths)} trajectories)"
+        if name == "operator" and cfg.closed_loop:  # its hand depends on the mode
+            title = f"operator's hand under {cfg.modes[0].value} ({len(paths)})"
+        ax.set_title(title)
         ax.set_xlabel("x [m]")
         ax.set_aspect("equal")
     axes[0][0].set_ylabel("y [m]")
@@ -67,23 +70,26 @@ def write_example_figures(cfg: SimConfig, K: int, out: Path) -> list[str]:
     """Fig. 5c (heading), 5d (x, y with P(H), P(R)) and 6 (alpha_i) of trajectory K."""
     plt = _pyplot()
     colors = COLORS
-    trial = sample_trial(cfg, K)
-    t = trial.t_s
-    hand = np.concatenate(
-        [trial.hand.position[:, :2], heading_of(trial.hand.rotation)[:, None]], -1
-    )
-    traces = {m.value: trace(cfg, K, m) for m in cfg.modes if m.value in ("S", "DS")}
-    start = np.array([*cfg.start_xy_m, cfg.start_heading_rad])
-    robot = {
-        name: np.vstack([start, np.c_[tr.p_robot[:, :2], heading_of(tr.step.X_next.rotation)]])
-        for name, tr in traces.items()
-    }
+    runs = {m.value: example(cfg, K, m) for m in cfg.modes if m.value in ("S", "DS")}
+    # The hand: one for an open-loop operator; per mode for one who watches the robot.
+    hands: dict[str, tuple[Any, Any, str]]
+    if cfg.closed_loop:
+        hands = {f"operator ({name})": (ex.t_s, ex.hand, name) for name, ex in runs.items()}
+    else:
+        first = next(iter(runs.values()))
+        hands = {"operator": (first.t_s, first.hand, "operator")}
+    ls_hand = "--" if cfg.closed_loop else "-"
+    which = "closed-loop operator" if cfg.closed_loop else f"{cfg.operator} operator"
+
+    def plot_hands(ax: Any, dim: int) -> None:
+        for label, (t, xyh, color) in hands.items():
+            ax.plot(t, xyh[:, dim], color=colors[color], ls=ls_hand, lw=1.0, label=label)
 
     fig, ax = plt.subplots(figsize=(7, 3.6))
     fig.subplots_adjust(left=0.1, right=0.97, bottom=0.14, top=0.9)
-    ax.plot(t, hand[:, 2], color=colors["operator"], label="operator")
-    for name, xyh in robot.items():
-        ax.plot(t, xyh[:, 2], color=colors[name], label=name)
+    plot_hands(ax, 2)
+    for name, ex in runs.items():
+        ax.plot(ex.t_s, ex.robot[:, 2], color=colors[name], label=name)
     ax.axhline(cfg.handle_normal_rad, color="k", ls="--", lw=0.8, label="handle normal")
     tol = (
         cfg.handle_normal_rad - cfg.success_heading_rad,
@@ -92,7 +98,7 @@ def write_example_figures(cfg: SimConfig, K: int, out: Path) -> list[str]:
     ax.axhspan(*tol, color="k", alpha=0.06)
     ax.set_xlabel("time [s]")
     ax.set_ylabel("heading [rad]")
-    ax.set_title(f"Fig. 5c: heading over time (trajectory {K})")
+    ax.set_title(f"Fig. 5c: heading over time (trajectory {K}, {which})")
     ax.legend(fontsize=8)
     fig.savefig(out / FIGURES[1], dpi=DPI)
     plt.close(fig)
@@ -101,26 +107,29 @@ def write_example_figures(cfg: SimConfig, K: int, out: Path) -> list[str]:
     fig.subplots_adjust(left=0.11, right=0.9, bottom=0.08, top=0.92, hspace=0.12)
     for row, (dim, label) in enumerate(((0, "x [m]"), (1, "y [m]"))):
         ax = axes2[row]
-        ax.plot(t, hand[:, dim], color=colors["operator"], label="operator")
-        for name, xyh in robot.items():
-            ax.plot(t, xyh[:, dim], color=colors[name], label=name)
+        plot_hands(ax, dim)
+        for name, ex in runs.items():
+            ax.plot(ex.t_s, ex.robot[:, dim], color=colors[name], label=name)
         ax.set_ylabel(label)
         twin = ax.twinx()
-        tt = t[1:]
-        if traces:
-            first = next(iter(traces.values()))
+        for i, (name, ex) in enumerate(runs.items()):
+            tt = ex.t_s[1:]
+            if cfg.closed_loop or i == 0:  # the hand's P(H): per mode when it watches
+                tag = f"P(H) {name}" if cfg.closed_loop else "P(H)"
+                color = colors[name] if cfg.closed_loop else colors["operator"]
+                twin.plot(
+                    tt, ex.trace.step.P_human[:, dim], color=color, ls="-.", lw=0.8, label=tag
+                )
             twin.plot(
-                tt, first.step.P_human[:, dim], color=colors["operator"], ls=":", label="P(H)"
+                tt, ex.trace.step.P_robot[:, dim], color=colors[name], ls=":", label=f"P(R) {name}"
             )
-        for name, tr in traces.items():
-            twin.plot(tt, tr.step.P_robot[:, dim], color=colors[name], ls=":", label=f"P(R) {name}")
         twin.set_ylim(0, 1.05)
         twin.set_ylabel("P")
         if row == 0:
             ax.legend(loc="upper left", fontsize=8)
             twin.legend(loc="lower right", fontsize=8)
     axes2[1].set_xlabel("time [s]")
-    fig.suptitle(f"Fig. 5d: x and y over time with P(H), P(R) (trajectory {K})")
+    fig.suptitle(f"Fig. 5d: x and y over time with P(H), P(R) (trajectory {K}, {which})")
     fig.savefig(out / FIGURES[2], dpi=DPI)
     plt.close(fig)
 
@@ -128,13 +137,13 @@ def write_example_figures(cfg: SimConfig, K: int, out: Path) -> list[str]:
     fig.subplots_adjust(left=0.12, right=0.97, bottom=0.07, top=0.93, hspace=0.12)
     for row, (dim, label) in enumerate(((0, "alpha_x"), (1, "alpha_y"), (5, "alpha_heading"))):
         ax = axes3[row]
-        for name, tr in traces.items():
-            ax.plot(t[1:], tr.step.alpha[:, dim], color=colors[name], label=name)
+        for name, ex in runs.items():
+            ax.plot(ex.t_s[1:], ex.trace.step.alpha[:, dim], color=colors[name], label=name)
         ax.set_ylim(-0.02, 1.02)
         ax.set_ylabel(label)
     axes3[0].legend(fontsize=8)
     axes3[2].set_xlabel("time [s]")
-    fig.suptitle(f"Fig. 6: alpha_i over time, S vs DS (trajectory {K})")
+    fig.suptitle(f"Fig. 6: alpha_i over time, S vs DS (trajectory {K}, {which})")
     fig.savefig(out / FIGURES[3], dpi=DPI)
     plt.close(fig)
     return list(FIGURES[1:])

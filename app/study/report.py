@@ -31,10 +31,16 @@ def brief(
             "cosine_distance": tests["cosine_distance"]["two_sample_t"]["p_value"],
             "agreement": tests["agreement"]["two_sample_t"]["p_value"],
         }
+    fig = summary["fig5_fig6"]
+    x_per_y = {k: fig[k]["mean"] for k in ("S", "DS") if k in fig}
+    if "paired_t_S_minus_DS" in fig:
+        x_per_y["p"] = fig["paired_t_S_minus_DS"]["p_value"]
     return {
         "out": str(out),
         "files": list(files),
         "operator": summary["operator"]["kind"],
+        "fig5_operator": fig["operator"],
+        "fig5_x_per_y": x_per_y,
         "trajectories": summary["trajectories"],
         "seed": summary["seed"],
         "modes": modes,
@@ -78,13 +84,30 @@ def markdown(summary: dict[str, Any]) -> str:
         text = f"{est:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
         return f"**{text}**" if better.get(key) == mode else text
 
+    op = summary["operator"]
+    if op["closed_loop"]:
+        about = (
+            "The operator watches the robot (with a perception delay) and steers it to the TRUE "
+            "handle; a trial ends when it is satisfied and holds, or gives up. This table is a "
+            "simulated analogue of the paper's Table I (a study with ten people), shaped like "
+            "it: it is not that study, and its numbers are not Table I's."
+        )
+    else:
+        about = (
+            f"The operator (`{op['kind']}`) follows a sampled trajectory and does not watch the "
+            "robot, as in the paper's simulation: it reproduces the qualitative claims of "
+            "Fig. 5/6 (below); it cannot correct the robot, so its aggregate table cannot "
+            "speak to the paper's Table I."
+        )
     lines = [
         f"# Simulation study: {summary['trajectories']} trajectories, seed {summary['seed']}, "
-        f"operator `{summary['operator']['kind']}`",
+        f"operator `{op['kind']}`",
+        "",
+        about,
         "",
         "Means and 95 % confidence intervals (success: Laplace estimate, adjusted-Wald; time: "
         "geometric mean; cosine distance and agreement: mean of the per-trajectory values, t "
-        "interval). Bold: better of S and DS with p < 0.05.",
+        "interval), the paper's literal definitions. Bold: better of S and DS with p < 0.05.",
         "",
         "| Mode | Success Rate | Trial Time (s) | Cosine Distance | Ratio of Agreement |",
         "| --- | --- | --- | --- | --- |",
@@ -106,6 +129,16 @@ def markdown(summary: dict[str, Any]) -> str:
             )
             + " |"
         )
+    if op["closed_loop"]:
+        ended = ", ".join(
+            f"{name} {m['gave_up_share']:.0%}" for name, m in summary["modes"].items()
+        )
+        lines += [
+            "",
+            f"Trials that ended with the operator giving up (patience): {ended}; the others "
+            "ended satisfied. A trial's time is its duration, so where most give up it is mostly "
+            "the patience limit.",
+        ]
     if tests:
         lines += [
             "",
@@ -124,6 +157,8 @@ def markdown(summary: dict[str, Any]) -> str:
             for test, tlabel in (("two_sample_t", "two-sample t"), ("paired_t", "paired t")):
                 r = tests[key][test]
                 lines.append(f"| {label} | {tlabel} | {r['t']:.3f} | {_p(r['p_value'])} |")
+    lines += _variants_table(summary)
+    lines += _fig5_section(summary["fig5_fig6"])
     lines += ["", "## Cosine distance and agreement by phase of the trial (deciles)", ""]
     edges = next(iter(summary["modes"].values()))["by_phase"]["edges"]
     head = " | ".join(f"{a:.1f}-{b:.1f}" for a, b in itertools.pairwise(edges))
@@ -147,6 +182,56 @@ def markdown(summary: dict[str, Any]) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _variants_table(summary: dict[str, Any]) -> list[str]:
+    modes = summary["modes"]
+    first = next(iter(modes.values()))["metric_variants"]
+    names = [
+        k
+        for k, v in first.items()
+        if isinstance(v, dict) and isinstance(v.get("cosine_distance"), dict)
+    ]
+    lines = [
+        "",
+        "## Metric variants (mean cosine distance / ratio of agreement)",
+        "",
+        "The headline is `literal`. The others change one thing each:",
+        "",
+    ]
+    lines += [f"- `{k}`: {first[k]['about']}" for k in names]
+    lines += ["", "| Mode | " + " | ".join(names) + " |", "| --- |" + " --- |" * len(names)]
+
+    def fmt(v: dict[str, Any]) -> str:
+        c, a = v["cosine_distance"]["mean"], v["agreement"]["mean"]
+        return "n/a" if c is None or a is None else f"{c:.3f} / {a:.3f}"
+
+    for name, m in modes.items():
+        mv = m["metric_variants"]
+        lines.append(f"| {name} | " + " | ".join(fmt(mv[k]) for k in names) + " |")
+    return lines
+
+
+def _fig5_section(fig: dict[str, Any]) -> list[str]:
+    lines = [
+        "",
+        f"## Fig. 5/6: the open-loop `{fig['operator']}` operator, {fig['trajectories']} "
+        "trajectories",
+        "",
+        f"Claim ({fig['claim']}). While the operator moves along y only, the output's x motion "
+        "per unit of y motion (sum |U_out,x| / sum |U_out,y|, per trajectory):",
+        "",
+    ]
+    for k in ("S", "DS"):
+        if k in fig and fig[k]["mean"] is not None:
+            lo, hi = fig[k]["ci95"]
+            lines.append(f"- {k}: {fig[k]['mean']:.3f} [{lo:.3f}, {hi:.3f}] (n = {fig[k]['n']})")
+    if "paired_t_S_minus_DS" in fig:
+        t = fig["paired_t_S_minus_DS"]
+        lines.append(f"- paired t (S minus DS): t = {t['t']:.2f}, p = {_p(t['p_value'])}")
+    lines.append("")
+    lines.append("The figures fig5b-d and fig6 are drawn from this operator.")
+    return lines
 
 
 def _p(p: float) -> str:

@@ -11,7 +11,7 @@ import math
 import multiprocessing as mp
 import os
 import signal
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -59,19 +59,33 @@ def simulate(
     numbers do not depend on `workers` (beyond the last bits). `meanwhile` runs in this
     process while the workers compute (after the run with one worker).
     """
-    n = cfg.trajectories
+    return simulate_all([cfg], workers, bar, meanwhile)[0]
+
+
+def simulate_all(
+    cfgs: Sequence[SimConfig],
+    workers: int,
+    bar: Progress | None = None,
+    meanwhile: Callable[[], None] | None = None,
+) -> list[StudyResult]:
+    """`simulate` for several studies at once, over one pool of workers."""
     if workers <= 1:
-        chunks = [run_chunk(cfg, list(range(n)), on_progress=bar.advance if bar else None)]
+        out = []
+        for cfg in cfgs:
+            chunk = run_chunk(cfg, list(range(cfg.trajectories)), bar.advance if bar else None)
+            out.append(merge(cfg, [chunk]))
         if meanwhile is not None:
             meanwhile()
-        return merge(cfg, chunks)
-    n_chunks = workers  # one chunk each: bigger batches step more efficiently
-    bounds = np.linspace(0, n, n_chunks + 1).astype(int)
-    jobs = [(cfg, list(range(a, b))) for a, b in itertools.pairwise(bounds) if b > a]
+        return out
+    jobs = []
+    for i, cfg in enumerate(cfgs):
+        # One chunk per worker and study: bigger batches step more efficiently.
+        bounds = np.linspace(0, cfg.trajectories, workers + 1).astype(int)
+        jobs += [(i, cfg, list(range(a, b))) for a, b in itertools.pairwise(bounds) if b > a]
     ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
     queue = ctx.SimpleQueue()
     with ctx.Pool(workers, initializer=_init_worker, initargs=(queue,)) as pool:
-        pending = pool.map_async(_work, jobs)
+        pending = pool.map_async(_work, [(cfg, idx) for _, cfg, idx in jobs], chunksize=1)
         if meanwhile is not None:
             meanwhile()
         while not pending.ready():
@@ -85,4 +99,7 @@ def simulate(
             done = queue.get()
             if bar:
                 bar.advance(done)
-    return merge(cfg, chunks)
+    return [
+        merge(cfg, [c for (j, _, _), c in zip(jobs, chunks, strict=True) if j == i])
+        for i, cfg in enumerate(cfgs)
+    ]
