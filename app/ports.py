@@ -60,6 +60,11 @@ class HumanInput:
 class HandInput(Protocol):
     """What the loop needs of the operator's hand."""
 
+    def start(self) -> None:
+        """Begin delivering input (a file starts playing); the loop calls it as it starts
+        running. Idempotent."""
+        ...
+
     def poll(self, now_s: float) -> HumanInput | None:
         """The newest input at loop time `now_s` (never blocks), or None before the first."""
         ...
@@ -75,6 +80,11 @@ class HandInput(Protocol):
     @property
     def finished(self) -> bool:
         """The source has no more input (a file that ended); False for live sources."""
+        ...
+
+    @property
+    def end_reason(self) -> str:
+        """What the loop says once `finished` input goes stale ("video ended", ...)."""
         ...
 
     def describe(self) -> str: ...

@@ -196,5 +196,10 @@ class ScriptedHand:
     def mapping_config(self) -> dict[str, Any]:
         return {}
 
+    end_reason = "script ended"
+
+    def start(self) -> None:
+        pass
+
     def close(self) -> None:
         self.closed = True

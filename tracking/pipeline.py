@@ -100,6 +100,13 @@ class HandTracker:
             self._intrinsics = k
         return k
 
+    def warm_up(self, width_px: int, height_px: int) -> None:
+        """Load the detector's model now (it takes ~1 s) by running it on one blank frame of
+        this size; then forget everything about that frame."""
+        blank = np.zeros((height_px, width_px, 3), dtype=np.uint8)
+        self.detector.detect(blank, 0.0)
+        self.reset()
+
     def reset(self) -> None:
         """Forget the followed hand and the filter states."""
         self._selector.reset()
@@ -297,12 +304,31 @@ class TrackingStream:
         self.captured = 0
         self.tracked = 0
         self.error: BaseException | None = None
+        self._opened = False
+
+    @property
+    def started(self) -> bool:
+        """The capture and tracking threads run (or ran)."""
+        return bool(self._threads)
+
+    def open(self) -> TrackingStream:
+        """Open the source (a camera that does not open raises here) and load the tracker's
+        model, without capturing yet: a file then starts playing at `start()`, from its first
+        frame, instead of while the model loads. Idempotent; returns self."""
+        if not self._opened:
+            self.source.open()
+            self._opened = True
+            width = int(getattr(self.source, "width_px", 0) or 640)
+            height = int(getattr(self.source, "height_px", 0) or 480)
+            if getattr(self.source, "has_pixels", True):
+                self.tracker.warm_up(width, height)
+        return self
 
     def start(self) -> TrackingStream:
-        """Open the source and start both threads; returns self."""
+        """Open the source (if `open()` was not called) and start both threads; returns self."""
         if self._threads:
             raise RuntimeError("TrackingStream already started")
-        self.source.open()
+        self.open()
         self._threads = [
             threading.Thread(target=self._capture, name="dsteleop-capture", daemon=True),
             threading.Thread(target=self._track, name="dsteleop-tracking", daemon=True),

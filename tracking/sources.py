@@ -63,21 +63,69 @@ def _resize(image: Image, size: tuple[int, int] | None) -> Image:
     return out
 
 
+#: Rotations a video's frames can be turned by [deg, clockwise] (`--rotate`).
+ROTATIONS_DEG = (0, 90, 180, 270)
+#: A video may decode a little fewer frames than its container declares (edit lists, counts
+#: rounded from the duration): it is complete if it is short by at most this many frames ...
+PARTIAL_SLACK_FRAMES = 2
+#: ... or this fraction of the declared count, whichever is larger.
+PARTIAL_SLACK_FRACTION = 0.01
+
+
+def check_rotation(deg: int | None) -> int | None:
+    """A `--rotate` value, checked (None: the container's own rotation).
+
+    Raises:
+        ConfigError: not one of `ROTATIONS_DEG`.
+    """
+    if deg is None:
+        return None
+    if isinstance(deg, bool) or deg not in ROTATIONS_DEG:
+        raise ConfigError(f"--rotate must be one of 0, 90, 180, 270 (degrees), got {deg!r}")
+    return int(deg)
+
+
+def _rotate(image: Image, deg: int) -> Image:
+    """`image` turned `deg` degrees clockwise (0, 90, 180, 270)."""
+    if deg == 0:
+        return image
+    cv2 = _cv2()
+    code = {90: cv2.ROTATE_90_CLOCKWISE, 180: cv2.ROTATE_180, 270: cv2.ROTATE_90_COUNTERCLOCKWISE}
+    out: Image = cv2.rotate(image, code[deg])
+    return out
+
+
 class VideoFileSource:
-    """A video file OpenCV can read.
+    """A video file OpenCV can read, turned upright as a player shows it.
+
+    Phone videos often store their frames sideways and say in the container (a display
+    matrix) how to turn them for display. The source reads that rotation with OpenCV
+    (`CAP_PROP_ORIENTATION_META`) and turns every frame itself (`CAP_PROP_ORIENTATION_AUTO` is
+    switched off, so that no OpenCV build turns it twice); `rotate` overrides the container.
+    Image up is then the person's up, which the workspace mapping turns into robot up.
+
+    A file that ends before the frame count its container declares (a truncated download, an
+    unreadable tail) is `partial`; `check_complete()` says so in one line.
 
     Args:
         path: the file.
-        realtime: pace frames at the file's fps on the monotonic clock; frames the consumer
-            is too slow for are dropped by the stream (newest wins). False: every frame as
-            fast as the consumer reads, stamped seq / fps.
-        size: resize frames to (width, height) [px] on read (None: as stored).
-        loop: start again at the end (realtime demos).
+        realtime: pace frames at the file's fps on the monotonic clock, from the first
+            `read()` (so a live loop that starts later sees the clip from its first frame);
+            frames the consumer is too slow for are dropped by the stream (newest wins).
+            False: every frame as fast as the consumer reads, stamped seq / fps.
+        size: resize the upright frames to (width, height) [px] on read (None: as stored).
+        loop: start again at the end (`--loop-video`).
+        rotate: turn the stored frames this many degrees clockwise (0, 90, 180, 270)
+            instead of what the container says (None: the container's rotation).
 
     Attributes:
         skipped: frames a realtime reader skipped because they were already overdue.
-        width_px, height_px: size of the stored frames (after `open()`).
-        frame_count: frames the container reports (after `open()`; may be approximate).
+        width_px, height_px: size of the upright frames before `size` (after `open()`).
+        frame_count: frames the container declares (after `open()`; may be approximate).
+        frames_read: frames decoded (or skipped as overdue) on the first pass through the file.
+        rotation_deg: the rotation applied [deg, clockwise] (after `open()`).
+        container_rotation_deg: the rotation the container asks for (after `open()`).
+        ended: the first pass reached the end of the readable frames.
     """
 
     def __init__(
@@ -87,20 +135,26 @@ class VideoFileSource:
         realtime: bool = False,
         size: tuple[int, int] | None = None,
         loop: bool = False,
+        rotate: int | None = None,
     ) -> None:
         self.path = Path(path)
         self.realtime = realtime
         self.size = size
         self.loop = loop
+        self.rotate = check_rotation(rotate)
         self.fps = 30.0
         self.frame_count = 0
+        self.frames_read = 0
         self.width_px = 0
         self.height_px = 0
+        self.rotation_deg = 0
+        self.container_rotation_deg = 0
         self.skipped = 0
+        self.ended = False
         self._cap: Any = None
         self._seq = 0
         self._index = 0
-        self._t0 = 0.0
+        self._t0: float | None = None
 
     def describe(self) -> str:
         return f"video {self.path}"
@@ -118,56 +172,108 @@ class VideoFileSource:
         if not cap.isOpened():
             cap.release()
             raise InputError(f"cannot read video (corrupt or unsupported format): {self.path}")
+        cap.set(cv2.CAP_PROP_ORIENTATION_AUTO, 0)  # we turn the frames (class docstring)
         ok, first = cap.read()
         if not ok or first is None:
             cap.release()
             raise InputError(f"video has no readable frames: {self.path}")
+        meta = float(cap.get(cv2.CAP_PROP_ORIENTATION_META))
+        self.container_rotation_deg = round(meta / 90.0) * 90 % 360 if math.isfinite(meta) else 0
+        self.rotation_deg = self.container_rotation_deg if self.rotate is None else self.rotate
         fps = float(cap.get(cv2.CAP_PROP_FPS))
         self.fps = fps if math.isfinite(fps) and 1.0 <= fps <= 1000.0 else 30.0
-        self.frame_count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
-        self.height_px, self.width_px = first.shape[:2]
+        self.frame_count = max(0, int(cap.get(cv2.CAP_PROP_FRAME_COUNT)))
+        self.height_px, self.width_px = _rotate(first, self.rotation_deg).shape[:2]
         cap.set(cv2.CAP_PROP_POS_FRAMES, 0)
         self._cap = cap
         self._seq = 0
         self._index = 0
-        self._t0 = time.monotonic()
+        self.frames_read = 0
+        self.ended = False
+        self._t0 = None
         log.info(
-            "video %s: %d frames at %.3g fps, %dx%d",
+            "video %s: %d frames at %.3g fps, stored %dx%d, turned %d deg clockwise (%s)",
             self.path,
             self.frame_count,
             self.fps,
             first.shape[1],
             first.shape[0],
+            self.rotation_deg,
+            "the container's rotation" if self.rotate is None else "--rotate",
         )
 
+    @property
+    def partial(self) -> bool:
+        """The first pass ended short of the declared frame count (module constants say by
+        how much a complete file may be short)."""
+        slack = max(PARTIAL_SLACK_FRAMES, math.ceil(PARTIAL_SLACK_FRACTION * self.frame_count))
+        return self.ended and self.frames_read < self.frame_count - slack
+
+    def end_note(self) -> str:
+        """How much of the file was read, in words (for logs and the view)."""
+        return f"read {self.frames_read} of the {self.frame_count} frames it declares"
+
+    def check_complete(self) -> None:
+        """Raise if the file turned out `partial`.
+
+        Raises:
+            InputError: one line with the counts.
+        """
+        if self.partial:
+            raise InputError(
+                f"{self.path}: {self.end_note()} (truncated or partly unreadable); "
+                "--allow-partial accepts it"
+            )
+
+    def _grab(self) -> bool:
+        ok = bool(self._cap.grab())
+        if ok and not self.ended:
+            self.frames_read += 1
+        return ok
+
     def read(self) -> Frame | None:
-        """The next frame, or None at the end of the file."""
+        """The next upright frame, or None at the end of the file."""
         if self._cap is None:
             raise RuntimeError("VideoFileSource.read() before open()")
         if self.realtime:
-            # Pace on the file's clock; the stream's one slot drops what the consumer misses,
-            # and frames already overdue by a whole period are skipped without decoding.
-            delay = self._t0 + self._index / self.fps - time.monotonic()
-            while delay < -1.0 / self.fps and self._cap.grab():
+            # Pace on the file's clock from the first read; the stream's one slot drops what
+            # the consumer misses, and frames already overdue by a whole period are skipped
+            # without decoding.
+            now = time.monotonic()
+            if self._t0 is None:
+                self._t0 = now - self._index / self.fps
+            delay = self._t0 + self._index / self.fps - now
+            while delay < -1.0 / self.fps and self._grab():
                 self._index += 1
                 self.skipped += 1
                 delay += 1.0 / self.fps
             if delay > 0:
                 time.sleep(delay)
-        ok, image = self._cap.read()
-        if not ok or image is None:
+        image = self._decode()
+        if image is None:
+            if not self.ended:
+                self.ended = True
+                log.info("video %s ended: %s", self.path, self.end_note())
             if not self.loop or self._index == 0:
                 return None
             self._cap.set(_cv2().CAP_PROP_POS_FRAMES, 0)
-            ok, image = self._cap.read()
-            if not ok:
+            self._t0 = None if self.realtime else self._t0
+            self._index = 0
+            image = self._decode()
+            if image is None:
                 return None
-        image = _resize(image, self.size)
+        image = _resize(_rotate(image, self.rotation_deg), self.size)
         t = time.monotonic() if self.realtime else self._seq / self.fps
         frame = Frame(self._seq, t, image.shape[1], image.shape[0], image=image)
         self._seq += 1
         self._index += 1
         return frame
+
+    def _decode(self) -> Image | None:
+        if not self._grab():
+            return None
+        ok, image = self._cap.retrieve()
+        return image if ok and image is not None else None
 
     def close(self) -> None:
         if self._cap is not None:
@@ -209,16 +315,23 @@ class WebcamSource:
         device: index or path.
         size: requested (width, height) [px]; the camera may pick the nearest it has.
         fps: requested frame rate [Hz].
+        rotate: turn every frame this many degrees clockwise (a camera mounted sideways).
     """
 
     realtime = True
 
     def __init__(
-        self, device: int | str, *, size: tuple[int, int] | None = (640, 480), fps: float = 30.0
+        self,
+        device: int | str,
+        *,
+        size: tuple[int, int] | None = (640, 480),
+        fps: float = 30.0,
+        rotate: int | None = None,
     ) -> None:
         self.device = device
         self.size = size
         self.fps = fps
+        self.rotation_deg = check_rotation(rotate) or 0
         self._cap: Any = None
         self._seq = 0
 
@@ -259,6 +372,7 @@ class WebcamSource:
         if not ok or image is None:
             log.warning("camera %s stopped delivering frames", self.device)
             return None
+        image = _rotate(image, self.rotation_deg)
         frame = Frame(self._seq, t, image.shape[1], image.shape[0], image=image)
         self._seq += 1
         return frame
@@ -393,6 +507,8 @@ def open_source(
     size: tuple[int, int] | None = None,
     fps: float = 30.0,
     duration_s: float | None = None,
+    rotate: int | None = None,
+    loop: bool = False,
 ) -> FrameSource:
     """Build (not open) the frame source of a `--source` (any kind but demo and auto, which
     the app resolves: the demo operator is not a tracking source).
@@ -403,6 +519,9 @@ def open_source(
         size: resize frames to (width, height) [px]; for cameras, the requested size.
         fps: frame rate of image folders and the synthetic operator [Hz].
         duration_s: length of the synthetic operator's run [s] (default 10 s).
+        rotate: turn video and camera frames this many degrees clockwise (None: a video's
+            own rotation, a camera's frames as they come).
+        loop: play a video again from the start when it ends.
 
     Raises:
         InputError: a file or folder that does not exist.
@@ -421,12 +540,12 @@ def open_source(
         )
     if spec.kind == "webcam":
         device: int | str = int(spec.target) if spec.target.isdigit() else spec.target
-        return WebcamSource(device, size=size or (640, 480), fps=fps)
+        return WebcamSource(device, size=size or (640, 480), fps=fps, rotate=rotate)
     if spec.kind == "images":
         return ImageFolderSource(Path(spec.target), fps=fps, size=size, realtime=realtime)
     if spec.kind == "video":
         path = Path(spec.target)
         if not path.exists():
             raise InputError(f"video not found: {path} (a source is {SOURCE_GRAMMAR})")
-        return VideoFileSource(path, realtime=realtime, size=size)
+        return VideoFileSource(path, realtime=realtime, size=size, loop=loop, rotate=rotate)
     raise ConfigError(f"--source {spec.kind} is not a tracking source here")

@@ -248,6 +248,8 @@ class SyntheticSource:
         config: estimator config whose openness definition is used.
     """
 
+    has_pixels = False  # no detector to load for it (`TrackingStream.open`)
+
     def __init__(
         self,
         trajectory: Trajectory,

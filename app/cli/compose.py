@@ -2,7 +2,9 @@
 
     demo            the built-in demo: a synthetic operator doing the pick-and-place task
     webcam:N        camera index N (or webcam:/dev/videoN)
-    video:PATH      a video file (paced at its frame rate when live)
+    video:PATH      a video file, upright (its container's rotation, or --rotate), paced at
+                    its frame rate when live from the loop's first tick; --loop-video
+                    plays it again at its end
     auto            the first camera that opens, otherwise the demo (with a line saying so)
 
 `realtime=True` (the live app) runs capture and tracking in their own threads and the loop on
@@ -31,18 +33,33 @@ from dsteleop.app.session.video import FrameRecorder
 from dsteleop.app.session.writer import HistoryFile
 from dsteleop.tracking.mapping import MappingConfig, WorkspaceMapping
 from dsteleop.tracking.pipeline import HandTracker, TrackingStream
-from dsteleop.tracking.sources import FrameSource, SourceSpec, available_cameras, open_source
+from dsteleop.tracking.sources import (
+    FrameSource,
+    SourceSpec,
+    VideoFileSource,
+    available_cameras,
+    open_source,
+)
 
 log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
 class Built:
-    """A ready loop and what the caller may need beside it."""
+    """A ready loop and what the caller may need beside it.
+
+    Attributes:
+        loop: the loop (not running yet; a live source starts with its first tick).
+        demo: the built-in demo operator, when the source is the demo.
+        source: the resolved source.
+        video: the video file behind the hand, when the source is one (its `partial`,
+            `end_note()` once it ended).
+    """
 
     loop: TeleopLoop
     demo: DemoOperator | None
     source: SourceSpec
+    video: VideoFileSource | None = None
 
 
 def resolve_source(spec: SourceSpec) -> SourceSpec:
@@ -86,6 +103,7 @@ def build(
         start = plant.reset()
         demo: DemoOperator | None = None
         frames: FrameRecorder | None = None
+        video: VideoFileSource | None = None
         if spec.kind == "demo":
             demo = DemoOperator(
                 plant.true_goals,
@@ -97,13 +115,19 @@ def build(
                 demo, DemoCamera(start, mapping), realtime=realtime, seed=options.seed
             )
         else:
-            source = open_source(spec, realtime=realtime)
+            source = open_source(
+                spec, realtime=realtime, rotate=options.rotate, loop=options.loop_video
+            )
+            if isinstance(source, VideoFileSource):
+                video = source
             if options.record_video:
                 frames = FrameRecorder(source)
                 source = frames
         delay = options.loop.input_delay_s
         if realtime:
-            stream = TrackingStream(source, HandTracker()).start()
+            # Opened (and the model loaded) now; capture starts with the loop's first tick,
+            # so a video plays from its first frame.
+            stream = TrackingStream(source, HandTracker()).open()
             hand = TrackedHandInput.from_stream(stream, WorkspaceMapping(mapping), delay)
         else:
             hand = TrackedHandInput.from_source(
@@ -124,4 +148,4 @@ def build(
     except BaseException:
         plant.close()
         raise
-    return Built(loop, demo, spec)
+    return Built(loop, demo, spec, video)

@@ -72,19 +72,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     sub_action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     module.add_arguments(sub_action.choices[command])
     args = parser.parse_args(argv)
-    logging.basicConfig(
-        level=logging.DEBUG if args.verbose else logging.INFO,
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-        stream=sys.stderr,
-    )
-    try:
-        return int(module.run(args))
-    except DsteleopError as exc:
-        print(f"dsteleop {command}: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"dsteleop {command}: interrupted", file=sys.stderr)
-        return 130
+    from dsteleop.app.cli.native_log import route_native_stderr
+
+    # MediaPipe's, FFmpeg's and OpenCV's own stderr lines go to logging at debug level.
+    with route_native_stderr():
+        logging.basicConfig(
+            level=logging.DEBUG if args.verbose else logging.INFO,
+            format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+            stream=sys.stderr,
+        )
+        try:
+            return int(module.run(args))
+        except DsteleopError as exc:
+            print(f"dsteleop {command}: error: {exc}", file=sys.stderr)
+            return 2
+        except KeyboardInterrupt:
+            print(f"dsteleop {command}: interrupted", file=sys.stderr)
+            return 130
 
 
 if __name__ == "__main__":

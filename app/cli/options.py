@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -22,7 +23,16 @@ from typing import Any
 from dsteleop.app.loop import LoopConfig, LostPolicy
 from dsteleop.arbitration import ArbitrationConfig, Mode
 from dsteleop.errors import ConfigError, InputError
-from dsteleop.tracking.sources import SOURCE_GRAMMAR, SourceSpec, parse_source
+from dsteleop.tracking.sources import (
+    ROTATIONS_DEG,
+    SOURCE_GRAMMAR,
+    SourceSpec,
+    VideoFileSource,
+    check_rotation,
+    parse_source,
+)
+
+log = logging.getLogger(__name__)
 
 
 def add_config_options(parser: argparse.ArgumentParser) -> None:
@@ -93,6 +103,46 @@ def arbitration_config(args: argparse.Namespace) -> tuple[ArbitrationConfig, dic
     return cfg, loop
 
 
+def add_video_options(parser: argparse.ArgumentParser) -> None:
+    """`--rotate` and `--allow-partial`: how a video file is read (track, run, serve, replay)."""
+    parser.add_argument(
+        "--rotate",
+        type=int,
+        choices=ROTATIONS_DEG,
+        default=None,
+        metavar="DEG",
+        help="turn video (or camera) frames 0, 90, 180 or 270 degrees clockwise "
+        "(default: the rotation the video's container asks for)",
+    )
+    parser.add_argument(
+        "--allow-partial",
+        action="store_true",
+        help="accept a video that ends before the frame count it declares (truncated)",
+    )
+
+
+def check_video_complete(source: VideoFileSource, allow_partial: bool, kept: str) -> None:
+    """After reading a video: one line and an error if it was cut short, a warning if that
+    was allowed (`--allow-partial`).
+
+    Args:
+        source: the video, read to its end.
+        allow_partial: accept a partial video.
+        kept: what was kept of it, for the message (e.g. where the tracked frames are).
+
+    Raises:
+        InputError: the video was partial and `allow_partial` is False.
+    """
+    if not source.partial:
+        return
+    if not allow_partial:
+        raise InputError(
+            f"{source.path}: {source.end_note()} (truncated or partly unreadable); {kept}; "
+            "--allow-partial accepts a partial video"
+        )
+    log.warning("%s: %s (truncated); accepted (--allow-partial)", source.path, source.end_note())
+
+
 def add_loop_options(parser: argparse.ArgumentParser, default_source: str) -> None:
     """Options shared by `run` and `serve`."""
     parser.add_argument("--source", default=default_source, help=f"{SOURCE_GRAMMAR}")
@@ -122,6 +172,12 @@ def add_loop_options(parser: argparse.ArgumentParser, default_source: str) -> No
         action="store_true",
         help="also record the camera frames (for replay --retrack)",
     )
+    parser.add_argument(
+        "--loop-video",
+        action="store_true",
+        help="play a video source again from the start when it ends",
+    )
+    add_video_options(parser)
     add_config_options(parser)
 
 
@@ -137,6 +193,9 @@ class LoopOptions:
         goal_noise_m: goal position noise [m] (None: the task's default).
         record: the session folder (run) or root (serve), or None.
         record_video: record the camera frames too.
+        loop_video: play a video source again when it ends.
+        rotate: turn video or camera frames [deg clockwise] (None: a video's own rotation).
+        allow_partial: accept a video that ends before the frames it declares.
     """
 
     source: SourceSpec
@@ -146,6 +205,9 @@ class LoopOptions:
     goal_noise_m: float | None = None
     record: Path | None = None
     record_video: bool = False
+    loop_video: bool = False
+    rotate: int | None = None
+    allow_partial: bool = False
 
     @classmethod
     def of(cls, source: str = "demo", loop: LoopConfig | None = None, **kw: Any) -> LoopOptions:
@@ -178,4 +240,7 @@ def loop_options(args: argparse.Namespace) -> LoopOptions:
         goal_noise_m=args.goal_noise,
         record=args.record,
         record_video=bool(args.record_video),
+        loop_video=bool(args.loop_video),
+        rotate=check_rotation(args.rotate),
+        allow_partial=bool(args.allow_partial),
     )

@@ -27,10 +27,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from dsteleop.app.cli.options import add_config_options, arbitration_config
+from dsteleop.app.cli.options import add_config_options, add_video_options, arbitration_config
 from dsteleop.app.cli.progress import Progress, prepare_out_dir
 from dsteleop.arbitration import ArbitrationConfig, Mode
 from dsteleop.errors import ConfigError, InputError
+from dsteleop.tracking.sources import check_rotation
 
 log = logging.getLogger(__name__)
 
@@ -51,6 +52,8 @@ class ReplayCommand:
         workers: processes.
         plots: write the PNG plots.
         arbitration: hyper-parameters for the replays (None: each session's own).
+        rotate: turn the frames of video inputs [deg clockwise] (None: their own rotation).
+        allow_partial: accept videos that end before the frames they declare.
     """
 
     inputs: tuple[Path, ...]
@@ -62,6 +65,8 @@ class ReplayCommand:
     workers: int
     plots: bool
     arbitration: ArbitrationConfig | None
+    rotate: int | None = None
+    allow_partial: bool = False
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -93,6 +98,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--workers", type=int, default=min(2, os.cpu_count() or 1), help="parallel processes"
     )
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    add_video_options(parser)
     add_config_options(parser)
 
 
@@ -134,6 +140,8 @@ def command(args: argparse.Namespace) -> ReplayCommand:
         workers=int(args.workers),
         plots=not args.no_plots,
         arbitration=arb,
+        rotate=check_rotation(args.rotate),
+        allow_partial=bool(args.allow_partial),
     )
 
 
@@ -151,7 +159,9 @@ def _work(unit: Unit) -> list[tuple[str, float, Any]]:
     if path.suffix.lower() in VIDEO_SUFFIXES:
         from dsteleop.app.replay.video import replay_video
 
-        traces, recorded_s = replay_video(path, modes, cmd.arbitration)
+        traces, recorded_s = replay_video(
+            path, modes, cmd.arbitration, rotate=cmd.rotate, allow_partial=cmd.allow_partial
+        )
         return [(path.name, recorded_s, tr) for tr in traces]
     session = read_session(path)
     if cmd.arbitration is not None:

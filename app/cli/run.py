@@ -19,7 +19,12 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from dsteleop.app.cli.options import LoopOptions, add_loop_options, loop_options
+from dsteleop.app.cli.options import (
+    LoopOptions,
+    add_loop_options,
+    check_video_complete,
+    loop_options,
+)
 from dsteleop.app.cli.signals import StopOnSignal
 from dsteleop.errors import ConfigError
 
@@ -73,19 +78,31 @@ def run(args: argparse.Namespace) -> int:
     loop = built.loop
     max_ticks = int(cmd.max_seconds * opts.loop.rate_hz)
     t0 = time.perf_counter()
-    with StopOnSignal(loop, (signal.SIGTERM,)):
+    with StopOnSignal(loop, (signal.SIGTERM,)) as stopper:
         try:
             if opts.record is not None:
                 loop.start_recording(opts.record, {"command": "run", "argv": sys.argv[1:]})
             if cmd.realtime:
-                loop.run(max_ticks=max_ticks, until_outcome=True)
+                loop.run(max_ticks=max_ticks, until_outcome=True, until_finished=True)
             else:
                 loop.run_headless(max_ticks)
         finally:
             loop.close()
     wall = time.perf_counter() - t0
+    if built.video is not None:
+        kept = "no session was recorded" if opts.record is None else f"the session is {opts.record}"
+        check_video_complete(built.video, opts.allow_partial, kept)
+    if stopper.received:
+        stopped_by = stopper.received
+    elif loop.outcome:
+        stopped_by = "outcome"
+    elif loop.hand.finished:
+        stopped_by = loop.hand.end_reason
+    else:
+        stopped_by = "max-seconds"
     summary: dict[str, Any] = {
         "outcome": loop.outcome or "none",
+        "stopped_by": stopped_by,
         "ticks": loop.tick_index,
         "loop_s": round(loop.tick_index / opts.loop.rate_hz, 3),
         "wall_s": round(wall, 3),

@@ -30,6 +30,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from dsteleop.app.cli.options import add_video_options, check_video_complete
 from dsteleop.arbitration.se3 import so3_log
 from dsteleop.errors import ConfigError, InputError
 from dsteleop.tracking.detector import DetectorConfig
@@ -37,7 +38,14 @@ from dsteleop.tracking.pipeline import HandTracker, TrackerConfig, iter_samples
 from dsteleop.tracking.pose import PoseConfig
 from dsteleop.tracking.preview import PreviewWriter, draw_sample
 from dsteleop.tracking.selection import HandChoice, SelectionConfig
-from dsteleop.tracking.sources import SOURCE_GRAMMAR, SourceSpec, open_source, parse_source
+from dsteleop.tracking.sources import (
+    SOURCE_GRAMMAR,
+    SourceSpec,
+    VideoFileSource,
+    check_rotation,
+    open_source,
+    parse_source,
+)
 from dsteleop.tracking.types import HandSample
 
 log = logging.getLogger(__name__)
@@ -59,6 +67,8 @@ class TrackCommand:
     size: tuple[int, int] | None = None
     max_frames: int | None = None
     duration_s: float | None = None
+    rotate: int | None = None
+    allow_partial: bool = False
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -78,6 +88,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--size", metavar="WxH", help="resize frames, e.g. 640x480")
     parser.add_argument("--max-frames", type=int, help="stop after this many frames")
     parser.add_argument("--duration", type=float, help="length of a 'synthetic' run [s]")
+    add_video_options(parser)
 
 
 def _parse_size(text: str | None) -> tuple[int, int] | None:
@@ -117,6 +128,8 @@ def _command(args: argparse.Namespace) -> TrackCommand:
         size=_parse_size(args.size),
         max_frames=args.max_frames,
         duration_s=args.duration,
+        rotate=check_rotation(args.rotate),
+        allow_partial=bool(args.allow_partial),
     )
 
 
@@ -172,7 +185,7 @@ def run(args: argparse.Namespace) -> int:
         selection=SelectionConfig(hand=cmd.hand),
         mirrored=cmd.mirrored,
     )
-    source = open_source(cmd.source, size=cmd.size, duration_s=cmd.duration_s)
+    source = open_source(cmd.source, size=cmd.size, duration_s=cmd.duration_s, rotate=cmd.rotate)
     # Files decode two frames ahead while MediaPipe runs; live sources never queue frames.
     prefetch = 0 if source.realtime else 2
     preview: PreviewWriter | None = None
@@ -204,6 +217,8 @@ def run(args: argparse.Namespace) -> int:
     wall = time.perf_counter() - t_start
     if n == 0:
         raise InputError(f"no frames read from {cmd.source}")
+    if isinstance(source, VideoFileSource) and cmd.max_frames is None:
+        check_video_complete(source, cmd.allow_partial, f"the {n} frames tracked are in {cmd.out}")
     ms = np.asarray(frame_s) * 1e3
     summary = {
         "source": source.describe(),

@@ -36,6 +36,11 @@ class RecordedHandInput:
     def finished(self) -> bool:
         return self._now >= self._last
 
+    end_reason = "recording ended"
+
+    def start(self) -> None:
+        pass
+
     def poll(self, now_s: float) -> HumanInput | None:
         self._now = now_s
         k = bisect.bisect_right(self._times, now_s + 1e-9) - 1

@@ -40,6 +40,8 @@ class TrackedHandInput:
         description: the source, for logs and recordings.
         on_close: releases the source.
         finished: tells whether the source has ended (None: never).
+        on_start: starts the source delivering (a live stream's threads), or None.
+        end_reason: what the loop says once the input of a finished source is stale.
     """
 
     def __init__(
@@ -50,9 +52,13 @@ class TrackedHandInput:
         description: str = "hand source",
         on_close: Callable[[], None] | None = None,
         finished: Callable[[], bool] | None = None,
+        on_start: Callable[[], None] | None = None,
+        end_reason: str = "video ended",
     ) -> None:
         self._latest = latest
         self._finished = finished
+        self._on_start = on_start
+        self.end_reason = end_reason
         self.mapping = mapping
         self.input_delay_s = input_delay_s
         self._description = description
@@ -66,7 +72,13 @@ class TrackedHandInput:
     def from_stream(
         cls, stream: TrackingStream, mapping: WorkspaceMapping, input_delay_s: float = 0.0
     ) -> TrackedHandInput:
-        """Live: a started tracking stream (capture and tracking in their own threads)."""
+        """Live: a tracking stream (capture and tracking in their own threads), started by
+        `start()` (the loop's first tick) unless it already runs."""
+
+        def start() -> None:
+            if not stream.started:
+                stream.start()
+
         return cls(
             lambda _now: stream.latest(),
             mapping,
@@ -74,6 +86,7 @@ class TrackedHandInput:
             stream.source.describe(),
             stream.stop,
             lambda: stream.finished,
+            on_start=start,
         )
 
     @classmethod
@@ -99,6 +112,11 @@ class TrackedHandInput:
 
     def describe(self) -> str:
         return self._description
+
+    def start(self) -> None:
+        if self._on_start is not None:
+            self._on_start()
+            self._on_start = None
 
     @property
     def finished(self) -> bool:

@@ -257,8 +257,9 @@ class TeleopLoop:
             # First hand of the task: it maps onto the robot's pose. Back after a loss: it
             # maps to where the command was when it was lost. No jump either way.
             inp = self.hand.reanchor(inp, tick.anchor_target(self.state))
+        ended = self.hand.end_reason if self.hand.finished else ""
         self.state, decision = tick.decide(
-            self.state, self.config, self.arbiter, inp, goal, now, self._history_term()
+            self.state, self.config, self.arbiter, inp, goal, now, self._history_term(), ended
         )
         t_arb = self.clock.now()
         result = self.plant.apply(decision.X_next)
@@ -324,8 +325,17 @@ class TeleopLoop:
 
     # --- running ---------------------------------------------------------------------
 
-    def run(self, max_ticks: int | None = None, until_outcome: bool = False) -> None:
-        """Tick at the fixed rate until `stop()`, `max_ticks`, or (optionally) an outcome.
+    def run(
+        self,
+        max_ticks: int | None = None,
+        until_outcome: bool = False,
+        until_finished: bool = False,
+        tail_s: float = 0.5,
+    ) -> None:
+        """Tick at the fixed rate until `stop()`, `max_ticks`, or (optionally) an outcome or
+        the end of a file source (plus `tail_s` [s], so the halt shows in the record, as in
+        `run_headless`). The hand input starts delivering (a file starts playing) just
+        before the first tick.
 
         While it runs, the interpreter hands the GIL between threads every 0.5 ms instead of
         5 ms, so capture and tracking threads delay a due tick by at most about that much.
@@ -337,9 +347,11 @@ class TeleopLoop:
         n = 0
         gc.collect()
         gc.freeze()
+        self.hand.start()
         self.rate.restart()  # the schedule starts now, not where an earlier run left it
         switch = sys.getswitchinterval()
         sys.setswitchinterval(0.0005)
+        end_at: float | None = None
         try:
             while not self._stop.is_set():
                 timing = self.rate.wait()
@@ -350,6 +362,10 @@ class TeleopLoop:
                     break
                 if until_outcome and self.outcome:
                     break
+                if until_finished and end_at is None and self.hand.finished:
+                    end_at = timing.t_start_s + tail_s
+                if end_at is not None and timing.t_start_s >= end_at:
+                    break
         finally:
             sys.setswitchinterval(switch)
 
@@ -358,6 +374,7 @@ class TeleopLoop:
         source (plus `tail_s`, so the halt shows in the record), or `max_ticks`."""
         dt = self.config.dt_s
         end_at: float | None = None
+        self.hand.start()
         for k in range(max_ticks):
             t = k * dt
             self.clock.sleep_until(t)

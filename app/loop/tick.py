@@ -124,15 +124,19 @@ def start(X_current: HandState, arbiter: Arbiter, history: OperatorHistory) -> L
     )
 
 
-def staleness(inp: HumanInput | None, now_s: float, cfg: LoopConfig) -> str:
+def staleness(inp: HumanInput | None, now_s: float, cfg: LoopConfig, ended: str = "") -> str:
     """Why the input cannot drive the robot now ("" when it can): no input yet, no hand,
-    invalid (NaN/inf) data, or a camera that stalled (older than stale_limit_s)."""
+    invalid (NaN/inf) data, or a camera that stalled (older than stale_limit_s); `ended`
+    (e.g. "video ended") instead of the last two once the source has ended."""
     if inp is None:
-        return NO_INPUT
+        return ended or NO_INPUT
+    age = now_s - cfg.input_delay_s - inp.t_capture_s
+    stale = not math.isfinite(age) or age > cfg.stale_limit_s
+    if ended and stale:
+        return ended
     if inp.X_human is None:
         return inp.reason or NO_HAND
-    age = now_s - cfg.input_delay_s - inp.t_capture_s
-    if not math.isfinite(age) or age > cfg.stale_limit_s:
+    if stale:
         return STALLED
     return ""
 
@@ -150,10 +154,12 @@ def decide(
     goal: HandState | None,
     now_s: float,
     history_term: Array | None,
+    ended: str = "",
 ) -> tuple[LoopState, Decision]:
-    """The first half of a tick (module docstring). `inp` is already re-anchored."""
+    """The first half of a tick (module docstring). `inp` is already re-anchored; `ended`
+    says why there is no more input once the source has ended ("" while it runs)."""
     dt = cfg.dt_s
-    reason = staleness(inp, now_s, cfg)
+    reason = staleness(inp, now_s, cfg, ended)
     if not reason and inp is not None and inp.X_human is not None and goal is not None:
         X_h = inp.X_human
         X_h_prev = X_h if state.lost or state.X_human_prev is None else state.X_human_prev
@@ -180,7 +186,8 @@ def decide(
         return new, Decision(step.X_next, step.U_out, step, Status.TRACKING, "")
     t_lost = now_s if not state.lost or state.t_lost_s is None else state.t_lost_s
     U_at_loss = state.U_last if not state.lost else state.U_at_loss
-    reason = reason or FINISHED
+    done = goal is None  # the task has its outcome: the robot halts, whatever the hand does
+    reason = outcome_words(state.outcome) if done else (reason or NO_INPUT)
     assisted: ArbitrationStep | None = None
     if cfg.lost_policy is LostPolicy.ASSIST and goal is not None:
         U_cmd, assisted = _assist(state, cfg, goal)
@@ -188,7 +195,7 @@ def decide(
     else:
         ramp = max(0.0, 1.0 - (now_s - t_lost) / cfg.halt_ramp_s)
         U_cmd = U_at_loss * ramp
-        status = Status.LOST
+        status = Status.FINISHED if done else Status.LOST
     X_next = advance_reference(state.X_ref, state.X_current, U_cmd, dt, cfg.arbitration)
     new = replace(
         state,
@@ -201,6 +208,13 @@ def decide(
         X_ref=X_next,
     )
     return new, Decision(X_next, U_cmd, assisted, status, reason)
+
+
+def outcome_words(outcome: Outcome | None) -> str:
+    """The outcome as the status says it: "success (in_bin)", "failure (timeout)"."""
+    if outcome is None:
+        return FINISHED
+    return f"{'success' if outcome.success else 'failure'} ({outcome.reason})"
 
 
 def _assist(

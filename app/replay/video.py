@@ -26,16 +26,35 @@ from dsteleop.tracking.sources import VideoFileSource
 from dsteleop.tracking.types import HandSample
 
 
-def track_video(path: Path, t_capture_s: Sequence[float] | None = None) -> list[HandSample]:
+def track_video(
+    path: Path,
+    t_capture_s: Sequence[float] | None = None,
+    *,
+    rotate: int | None = None,
+    allow_partial: bool = False,
+) -> list[HandSample]:
     """Every frame of a video through the tracker; capture times from the video's frame
-    rate, or from `t_capture_s` (one per frame) when given."""
+    rate, or from `t_capture_s` (one per frame) when given.
+
+    Args:
+        path: the video.
+        t_capture_s: capture time of each frame on the loop's clock [s] (a session's index).
+        rotate: turn the frames [deg clockwise] (None: the container's rotation).
+        allow_partial: accept a video that ends before the frames it declares.
+
+    Raises:
+        InputError: the video is partial (and that is not allowed).
+    """
     tracker = HandTracker()
     samples: list[HandSample] = []
+    source = VideoFileSource(path, realtime=False, rotate=rotate)
     try:
-        for _frame, s in iter_samples(VideoFileSource(path, realtime=False), tracker, prefetch=2):
+        for _frame, s in iter_samples(source, tracker, prefetch=2):
             samples.append(s)
     finally:
         tracker.close()
+    if source.partial and not allow_partial:
+        source.check_complete()
     if t_capture_s is not None:
         n = min(len(samples), len(t_capture_s))
         samples = [
@@ -46,11 +65,16 @@ def track_video(path: Path, t_capture_s: Sequence[float] | None = None) -> list[
 
 
 def replay_video(
-    path: Path, modes: Sequence[Mode], arbitration: ArbitrationConfig | None = None
+    path: Path,
+    modes: Sequence[Mode],
+    arbitration: ArbitrationConfig | None = None,
+    *,
+    rotate: int | None = None,
+    allow_partial: bool = False,
 ) -> tuple[list[Trace], float]:
     """Track a video and run it as a session in each mode (with `arbitration`, default the
-    defaults); returns (traces, duration [s])."""
-    samples = track_video(path)
+    defaults); returns (traces, duration [s]). `rotate`, `allow_partial`: `track_video`."""
+    samples = track_video(path, rotate=rotate, allow_partial=allow_partial)
     if not samples:
         raise InputError(f"{path}: no frames")
     duration = samples[-1].t_capture_s - samples[0].t_capture_s

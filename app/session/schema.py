@@ -44,6 +44,7 @@ class Status(str, enum.Enum):
     TRACKING = "tracking"  # the operator's fresh hand, through the arbitration
     LOST = "lost"  # no usable hand: the robot halts (or stands still)
     ASSIST = "assist"  # no usable hand, `--lost-policy assist`: the policy at reduced speed
+    FINISHED = "finished"  # the task has its outcome (the reason says which): the robot halts
 
 
 @dataclass(frozen=True)
