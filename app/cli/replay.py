@@ -172,7 +172,7 @@ def _work(unit: Unit) -> list[tuple[str, float, Any]]:
     elif cmd.retrack:
         from dsteleop.app.replay.video import replay_retracked
 
-        traces = replay_retracked(session, modes)
+        traces = replay_retracked(session, modes, cmd.allow_partial)
     else:
         traces = [core.replay_session(session, m, robot=cmd.robot) for m in modes]
     return [(session.name, tr.recorded_s, tr) for tr in traces]

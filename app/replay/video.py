@@ -90,17 +90,40 @@ def replay_video(
     return traces, duration
 
 
-def replay_retracked(session: Session, modes: Sequence[Mode]) -> list[Trace]:
-    """Re-run tracking on the session's video, then the loop in each mode."""
+def frame_times(path: Path) -> list[float]:
+    """The capture time of each recorded frame, in video order, from `frames.jsonl`; a
+    line cut short by a killed process ends the list."""
+    times: list[float] = []
+    for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
+        try:
+            times.append(float(json.loads(line)["t_capture"]))
+        except (ValueError, KeyError, TypeError):
+            break
+    return times
+
+
+def replay_retracked(
+    session: Session, modes: Sequence[Mode], allow_partial: bool = False
+) -> list[Trace]:
+    """Re-run tracking on the session's video, then the loop in each mode.
+
+    The frame index (`frames.jsonl`) says how many frames the video must hold: every line
+    is written after its frame, so even a session killed mid-recording has them all.
+
+    Raises:
+        InputError: no video, or the video holds fewer frames than its index names (unless
+            `allow_partial`).
+    """
     video, frames = session.video, session.frames
     if video is None or frames is None:
         raise InputError(f"{session.folder}: no video.mp4 + frames.jsonl to re-track")
-    times = [
-        float(json.loads(line)["t_capture"])
-        for line in frames.read_text().splitlines()
-        if line.strip()
-    ]
-    samples = track_video(video, times)
+    times = frame_times(frames)
+    samples = track_video(video, times, allow_partial=True)
+    if len(samples) < len(times) and not allow_partial:
+        raise InputError(
+            f"{video}: read {len(samples)} of the {len(times)} frames {frames.name} names "
+            "(truncated or partly unreadable); --allow-partial accepts it"
+        )
     mapping = MappingConfig(**_mapping_kwargs(session.meta.get("mapping", {})))
     ticks = [r.t_s for r in session.records]
     return [
