@@ -74,5 +74,7 @@ def test_kill_9_leaves_a_video_that_retracks(tmp_path: Path, shared_data: Path) 
     out = tmp_path / "out"
     assert main(["replay", str(session), "--retrack", "--modes", "DS", "--out", str(out)]) == 0
     metrics = json.loads((out / "metrics.json").read_text())
-    (replayed,) = metrics["sessions"]
+    # The session was killed in its one episode: replayed, listed "incomplete", not counted.
+    (replayed,) = metrics["episodes"]
+    assert replayed["end"] == "incomplete" and not replayed["counted"]
     assert replayed["modes"]["DS"]["arbitrated_ticks"] >= 0.5 * indexed

@@ -11,6 +11,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -53,17 +54,30 @@ def ds_session(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return folder
 
 
+def _outcome(meta: dict[str, Any]) -> str:
+    """The recorded outcome of a one-episode session: "success", "failure" or "none"."""
+    o = meta["episodes"][0]["outcome"] if meta.get("episodes") else meta.get("outcome")
+    if isinstance(o, dict):
+        return "success" if o["success"] else "failure"
+    return str(o or "none")
+
+
 def test_session_files_and_metadata(ds_session: Path) -> None:
     s = read_session(ds_session)
     assert s.complete and not s.truncated
     meta = s.meta
-    assert meta["schema"] == SCHEMA == "dsteleop.session/2"
+    assert meta["schema"] == SCHEMA == "dsteleop.session/3"
     assert meta["loop"]["arbitration"]["kappa"] == 4.0
     assert meta["mode"] == "DS" and meta["dims"][:6] == ["x", "y", "z", "roll", "pitch", "yaw"]
     assert s.mode is Mode.DS and s.dims == tuple(meta["dims"])
     assert meta["plant"]["utensil"] == "spoon" and "pick_known" in meta["plant"]
     assert meta["n_ticks"] == len(s.records) > 100
-    assert meta["outcome"] in ("success", "failure")
+    # One episode, reset to outcome, in the metadata (written as it ended).
+    (episode,) = meta["episodes"]
+    assert meta["n_episodes"] == 1 and episode["end"] == "outcome"
+    assert episode["first_tick"] == 0 and episode["last_tick"] == len(s.records) - 1
+    assert episode["outcome"]["success"] in (True, False) and episode["duration_s"] > 3
+    assert [e.to_dict() for e in s.episodes] == meta["episodes"]
     # The file format: every key of a tick line (recordings/README.md).
     lines = (ds_session / TICKS).read_text().splitlines()
     first = json.loads(lines[0])
@@ -96,7 +110,7 @@ def test_session_files_and_metadata(ds_session: Path) -> None:
         assert getattr(step, key).shape == (len(meta["dims"]),)
     events = [e for r in s.records for e in r.plant.events]
     outcome = next(r.outcome for r in s.records if r.outcome is not None)
-    assert ("success" if outcome.success else "failure") == meta["outcome"]
+    assert outcome.success == meta["episodes"][0]["outcome"]["success"]
     # The operator history persisted beside the session: one attempt per finished segment
     # (the pick ends at the grasp, the place at the outcome; a run that never grasps ends
     # its one segment at the outcome). Whether this machine's physics grasps is not tested
@@ -112,7 +126,7 @@ def test_replay_in_the_recorded_mode_reproduces_every_alpha(ds_session: Path) ->
     # Against the recorded robot (open loop, no physics): the same inputs, the same alphas.
     trace = replay_session(s, Mode.DS, robot="recorded")
     np.testing.assert_allclose(trace.step.alpha[trace.arbitrated], recorded, atol=1e-9, rtol=0)
-    assert trace.outcome_name == s.meta["outcome"]
+    assert trace.outcome_name == _outcome(s.meta)
     again = as_recorded(s)
     np.testing.assert_allclose(again.step.alpha[again.arbitrated], recorded, atol=0, rtol=0)
     # Against a fresh simulated robot (closed loop): the same world and hand; contacts may
@@ -135,8 +149,9 @@ def test_replay_command_writes_complete_metrics(ds_session: Path, tmp_path: Path
     assert r.returncode == 0, r.stderr
     m = json.loads((out / "metrics.json").read_text())
     assert m["wall_s"] > 0
-    (sess,) = m["sessions"]
-    assert sess["name"] == ds_session.name and sess["duration_s"] > 3
+    (sess,) = m["episodes"]
+    assert sess["name"] == f"{ds_session.name}/ep0" and sess["duration_s"] > 3
+    assert sess["session"] == ds_session.name and sess["counted"] and sess["end"] == "outcome"
     for mode in ("S", "DS", "manual"):
         row = sess["modes"][mode]
         for key in ("success", "time_s", "cosine_distance", "agreement", "mean_alpha"):
@@ -145,7 +160,9 @@ def test_replay_command_writes_complete_metrics(ds_session: Path, tmp_path: Path
         assert m["modes"][mode]["n"] == 1
     assert sess["modes"]["manual"]["cosine_distance"] == pytest.approx(0.0, abs=1e-9)
     assert sess["modes"]["manual"]["agreement"] == 1.0
-    assert "S_vs_DS" in m["tests"]
+    # One episode a mode: the tests are reported, with their n, as not meaningful.
+    assert m["tests"]["S_vs_DS"]["n"] == [1, 1] and not m["tests"]["S_vs_DS"]["meaningful"]
+    assert "not meaningful" in r.stderr
     assert sorted(p.name for p in out.glob("*.png"))  # plots were written
 
 
@@ -255,8 +272,8 @@ def test_the_real_videos_replay_through_the_whole_system(shared_data: Path, tmp_
     )
     assert r.returncode == 0, r.stderr
     m = json.loads((out / "metrics.json").read_text())
-    assert [s["name"] for s in m["sessions"]] == [v.name for v in videos]
-    for s in m["sessions"]:
+    assert [s["name"] for s in m["episodes"]] == [v.name for v in videos]
+    for s in m["episodes"]:
         assert s["duration_s"] > 3
         for mode in ("S", "DS"):
             row = s["modes"][mode]
@@ -302,7 +319,8 @@ def test_a_video_session_records_its_frames_and_replays_retracked(
     assert r.returncode == 0, r.stderr
     from dsteleop.app.replay.video import replay_retracked
 
-    trace = replay_retracked(s, [Mode.DS])[0]
+    ((episode, trace),) = replay_retracked(s, [Mode.DS])
+    assert episode.index == 0
     nan3 = np.full(3, np.nan)
     recorded = np.array(
         [
@@ -347,7 +365,7 @@ def test_a_session_recorded_before_the_format_change_opens_and_replays() -> None
         got = getattr(trace.step, name)[m]
         np.testing.assert_allclose(got[:, moved], recorded[:, moved], atol=1e-6, rtol=0)
     assert np.isfinite(trace.step.alpha[m]).all() and np.isfinite(trace.step.B[m]).all()
-    assert trace.outcome_name == s.meta["outcome"] == "success"
+    assert trace.outcome_name == _outcome(s.meta) == "success"
 
 
 @pytest.mark.parametrize("folder", [RECORDINGS / n for n in SAMPLES], ids=str)
@@ -360,8 +378,8 @@ def test_the_sample_sessions_are_current(folder: Path) -> None:
     assert len(SAMPLES) >= 3
     s = read_session(folder)
     assert s.meta["schema"] in READABLE
-    assert s.complete and s.meta["outcome"] in ("success", "failure")
+    assert s.complete and _outcome(s.meta) in ("success", "failure")
     recorded = recorded_alphas(s)
     trace = replay_session(s, s.mode, robot="recorded")
     np.testing.assert_allclose(trace.step.alpha[trace.arbitrated], recorded, atol=1e-9, rtol=0)
-    assert trace.outcome_name == s.meta["outcome"]
+    assert trace.outcome_name == _outcome(s.meta)

@@ -117,28 +117,23 @@ def _clients_cmd(kind: str, url: str, n: int, seconds: float) -> list[str]:
     ]
 
 
-def _restart_demo_on_outcome(built: Any) -> threading.Event:
-    """Keep the demo busy: reset the task a moment after each outcome."""
-    from dsteleop.app.cli.serve import DemoRestarter
-
-    stop = threading.Event()
-    DemoRestarter(built.loop, stop).start()
-    return stop
-
-
 def run_config(
     clients: int, kind: str, seconds: float, settle_s: float, scene_hz: float = 30.0
 ) -> dict[str, Any]:
     """One configuration: the demo session, `clients` clients of `kind`, measured."""
     from dsteleop.app.cli.compose import build
     from dsteleop.app.cli.options import LoopOptions
+    from dsteleop.app.cli.serve import RESET_AFTER_S
+    from dsteleop.app.loop import LoopConfig
     from dsteleop.app.loop.timing import raise_priority
     from dsteleop.app.viewer.server import Viewer, ViewerConfig
 
     raise_priority()  # as `dsteleop serve` does
 
     load_before = round(os.getloadavg()[0], 2)  # other work on this shared machine
-    built = build(LoopOptions.of("demo"), realtime=True, export_scene=True)
+    # As `dsteleop serve` builds it: the task resets a few seconds after each outcome.
+    loop_cfg = LoopConfig(reset_after_s=RESET_AFTER_S)
+    built = build(LoopOptions.of("demo", loop_cfg), realtime=True, export_scene=True)
     loop = built.loop
     viewer = Viewer(
         loop.broadcaster,
@@ -146,7 +141,6 @@ def run_config(
         scene=loop.plant.scene(),
         config=ViewerConfig(port=0, scene_hz=scene_hz),
     )
-    stop_restarts = _restart_demo_on_outcome(built)
     viewer.start()
     runner = threading.Thread(target=loop.run, name="bench-loop", daemon=True)
     runner.start()
@@ -177,7 +171,6 @@ def run_config(
         if proc is not None and proc.poll() is None:
             proc.kill()
             proc.wait()
-        stop_restarts.set()
         loop.stop()
         runner.join(timeout=5.0)
         viewer.close()

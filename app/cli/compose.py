@@ -97,7 +97,11 @@ def build(
     spec = resolve_source(options.source)
     mapping = mapping or MappingConfig()
     plant = KitchenPlant(
-        options.utensil, options.seed, options.goal_noise_m, export_scene=export_scene
+        options.utensil,
+        options.seed,
+        options.goal_noise_m,
+        export_scene=export_scene,
+        time_limit_s=options.time_limit_s,
     )
     try:
         start = plant.reset()

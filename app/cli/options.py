@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -143,8 +144,10 @@ def check_video_complete(source: VideoFileSource, allow_partial: bool, kept: str
     log.warning("%s: %s (truncated); accepted (--allow-partial)", source.path, source.end_note())
 
 
-def add_loop_options(parser: argparse.ArgumentParser, default_source: str) -> None:
-    """Options shared by `run` and `serve`."""
+def add_loop_options(
+    parser: argparse.ArgumentParser, default_source: str, record_help: str
+) -> None:
+    """Options shared by `run` and `serve` (`record_help`: what `--record DIR` means there)."""
     parser.add_argument("--source", default=default_source, help=f"{SOURCE_GRAMMAR}")
     parser.add_argument("--mode", default=None, help="DS, S, manual or autonomous (default DS)")
     parser.add_argument(
@@ -165,8 +168,21 @@ def add_loop_options(parser: argparse.ArgumentParser, default_source: str) -> No
         help="what the robot does while the hand is lost (default halt)",
     )
     parser.add_argument(
-        "--record", type=Path, default=None, metavar="DIR", help="record a session into DIR"
+        "--time-limit",
+        type=float,
+        default=None,
+        metavar="S",
+        help="a trial without an outcome after S seconds fails (timeout; default 120)",
     )
+    parser.add_argument(
+        "--reset-after",
+        type=float,
+        default=None,
+        metavar="S",
+        help="reset the task S seconds after each outcome, for the next trial "
+        "(0: never; default 4 for serve, 0 for run, which stops at the outcome)",
+    )
+    parser.add_argument("--record", type=Path, default=None, metavar="DIR", help=record_help)
     parser.add_argument(
         "--record-video",
         action="store_true",
@@ -196,6 +212,8 @@ class LoopOptions:
         loop_video: play a video source again when it ends.
         rotate: turn video or camera frames [deg clockwise] (None: a video's own rotation).
         allow_partial: accept a video that ends before the frames it declares.
+        time_limit_s: a trial without an outcome after this long fails [s] (None: the
+            task's default, 120 s).
     """
 
     source: SourceSpec
@@ -208,6 +226,7 @@ class LoopOptions:
     loop_video: bool = False
     rotate: int | None = None
     allow_partial: bool = False
+    time_limit_s: float | None = None
 
     @classmethod
     def of(cls, source: str = "demo", loop: LoopConfig | None = None, **kw: Any) -> LoopOptions:
@@ -215,7 +234,8 @@ class LoopOptions:
         return cls(parse_source(source), loop or LoopConfig(), **kw)
 
 
-def loop_options(args: argparse.Namespace) -> LoopOptions:
+def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOptions:
+    """The checked loop options (`reset_after_s`: the command's default for --reset-after)."""
     arb, loop_file = arbitration_config(args)
     flags: dict[str, Any] = {}
     if args.mode is not None:
@@ -226,6 +246,13 @@ def loop_options(args: argparse.Namespace) -> LoopOptions:
         flags["input_delay_s"] = args.input_delay
     if args.lost_policy is not None:
         flags["lost_policy"] = LostPolicy(args.lost_policy)
+    if args.reset_after is not None:
+        flags["reset_after_s"] = args.reset_after
+    elif "reset_after_s" not in loop_file:
+        flags["reset_after_s"] = reset_after_s
+    limit = args.time_limit
+    if limit is not None and not (math.isfinite(limit) and limit > 0):
+        raise ConfigError(f"--time-limit must be > 0 seconds, got {limit}")
     base = LoopConfig.from_dict({**loop_file, "arbitration": arb.to_dict()})
     loop = base.replace(**flags)
     if args.goal_noise is not None and not args.goal_noise >= 0:
@@ -243,4 +270,5 @@ def loop_options(args: argparse.Namespace) -> LoopOptions:
         loop_video=bool(args.loop_video),
         rotate=check_rotation(args.rotate),
         allow_partial=bool(args.allow_partial),
+        time_limit_s=limit,
     )

@@ -103,15 +103,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _expand(inputs: list[str]) -> tuple[Path, ...]:
-    from dsteleop.app.session.reader import is_session
+    """Session folders and videos; a folder of them is opened. A folder with what a session
+    holds but no meta.json is a session without its metadata: kept, so that reading it
+    refuses it, never replayed as a plain video."""
+    from dsteleop.app.session.reader import looks_like_session
 
     out: list[Path] = []
     for s in inputs:
         p = Path(s)
         if not p.exists():
             raise InputError(f"not found: {p}")
-        if p.is_dir() and not is_session(p):
-            subs = sorted(q for q in p.iterdir() if q.is_dir() and is_session(q))
+        if p.is_dir() and not looks_like_session(p):
+            subs = sorted(q for q in p.iterdir() if q.is_dir() and looks_like_session(q))
             vids = sorted(q for q in p.iterdir() if q.suffix.lower() in VIDEO_SUFFIXES)
             if not subs and not vids:
                 raise InputError(f"{p} holds no sessions (folders with meta.json) and no videos")
@@ -145,15 +148,18 @@ def command(args: argparse.Namespace) -> ReplayCommand:
     )
 
 
-Unit = tuple[str, tuple[str, ...], "ReplayCommand"]
+Unit = tuple[str, "int | None", tuple[str, ...], "ReplayCommand"]
+"""(input path, episode index (None: a video, or every episode of a re-tracked session),
+modes, the command)."""
 
 
-def _work(unit: Unit) -> list[tuple[str, float, Any]]:
-    """One input in some modes (runs in a worker process): (name, recorded_s, trace)."""
+def _work(unit: Unit) -> list[Any]:
+    """One input (or one episode of one) in some modes, in a worker process: its runs
+    (`replay.core.Run`)."""
     from dsteleop.app.replay import core
     from dsteleop.app.session.reader import read_session
 
-    path_s, mode_names, cmd = unit
+    path_s, index, mode_names, cmd = unit
     path = Path(path_s)
     modes = [Mode.parse(m) for m in mode_names]
     if path.suffix.lower() in VIDEO_SUFFIXES:
@@ -162,20 +168,26 @@ def _work(unit: Unit) -> list[tuple[str, float, Any]]:
         traces, recorded_s = replay_video(
             path, modes, cmd.arbitration, rotate=cmd.rotate, allow_partial=cmd.allow_partial
         )
-        return [(path.name, recorded_s, tr) for tr in traces]
+        return [core.Run(path.name, path.name, None, recorded_s, tr) for tr in traces]
     session = read_session(path)
     if cmd.arbitration is not None:
         loop = {**session.meta.get("loop", {}), "arbitration": cmd.arbitration.to_dict()}
         session = dataclasses.replace(session, meta={**session.meta, "loop": loop})
-    if cmd.as_recorded:
-        traces = [core.as_recorded(session)]
-    elif cmd.retrack:
+    if cmd.retrack:
         from dsteleop.app.replay.video import replay_retracked
 
-        traces = replay_retracked(session, modes, cmd.allow_partial)
+        return [
+            core.Run(session.of_episode(ep).name, session.name, ep, tr.recorded_s, tr)
+            for ep, tr in replay_retracked(session, modes, cmd.allow_partial)
+        ]
+    assert index is not None
+    episode = session.episodes[index]
+    view = session.of_episode(episode)
+    if cmd.as_recorded:
+        traces = [core.as_recorded(view)]
     else:
-        traces = [core.replay_session(session, m, robot=cmd.robot) for m in modes]
-    return [(session.name, tr.recorded_s, tr) for tr in traces]
+        traces = [core.replay_session(view, m, robot=cmd.robot) for m in modes]
+    return [core.Run(view.name, session.name, episode, tr.recorded_s, tr) for tr in traces]
 
 
 def run(args: argparse.Namespace) -> int:
@@ -184,54 +196,55 @@ def run(args: argparse.Namespace) -> int:
     from dsteleop.app.session.reader import read_session
 
     out = prepare_out_dir(cmd.out)
-    # Validate every input before the long work starts.
+    # Validate every input before the long work starts; a session's episodes are the units.
+    episodes: dict[Path, int] = {}
     for p in cmd.inputs:
         if p.suffix.lower() not in VIDEO_SUFFIXES:
-            read_session(p)
+            episodes[p] = len(read_session(p).episodes)
     t0 = time.perf_counter()
-    # Work units: a recorded session replays once per mode, each mode its own unit (the
-    # modes of one session run in parallel); a video or a re-tracked session is one unit
-    # (tracked once, then run in every mode).
+    # Work units: an episode of a recorded session replays once per mode, each mode its own
+    # unit (the modes run in parallel); a video or a re-tracked session is one unit (tracked
+    # once, then every episode run in every mode).
     names = tuple(m.value for m in cmd.modes)
-    units: list[tuple[int, Unit]] = []
-    for i, p in enumerate(cmd.inputs):
-        whole = cmd.as_recorded or cmd.retrack or p.suffix.lower() in VIDEO_SUFFIXES
-        for group in [names] if whole else [(m,) for m in names]:
-            units.append((i, (str(p), group, cmd)))
-    by_input: dict[int, list[tuple[str, float, Any]]] = {}
+    units: list[Unit] = []
+    for p in cmd.inputs:
+        if p.suffix.lower() in VIDEO_SUFFIXES or cmd.retrack:
+            units.append((str(p), None, names, cmd))
+            continue
+        for e in range(episodes[p]):
+            for group in [names] if cmd.as_recorded else [(m,) for m in names]:
+                units.append((str(p), e, group, cmd))
+    runs: list[Any] = []
     with Progress(len(units), sys.stderr, sys.stderr.isatty(), "replay", "runs") as bar:
         if cmd.workers == 1 or len(units) == 1:
-            for i, u in units:
-                by_input.setdefault(i, []).extend(_work(u))
+            for u in units:
+                runs.extend(_work(u))
                 bar.advance()
         else:
             import dsteleop.app.plants.kitchen  # noqa: F401  (loaded once; forked workers share it)
 
             with ProcessPoolExecutor(max_workers=cmd.workers) as pool:
-                for (i, _), res in zip(units, pool.map(_work, [u for _, u in units])):
-                    by_input.setdefault(i, []).extend(res)
+                for res in pool.map(_work, units):
+                    runs.extend(res)
                     bar.advance()
     wall = time.perf_counter() - t0
-    sessions = []
-    all_traces = []
-    for i in sorted(by_input):
-        res = by_input[i]
-        traces = [tr for _, _, tr in res]
-        all_traces.extend(traces)
-        sessions.append(core.session_summary(res[0][0], res[0][1], traces))
+    entries = core.episode_summaries(runs)
+    all_traces = [r.trace for r in runs]
     used = sorted(
         {tr.mode.value for tr in all_traces}, key=lambda m: names.index(m) if m in names else 99
     )
-    agg, tests = core.aggregate(sessions, used)
-    recorded = sum(s["duration_s"] for s in sessions)
-    runs = 1 if cmd.as_recorded else len(names)
+    agg, tests = core.aggregate(entries, used)
+    for note in core.test_notes(tests):
+        log.warning("%s", note)
+    recorded = sum(e["duration_s"] for e in entries)
+    n_runs = 1 if cmd.as_recorded else len(names)
     metrics_json = {
         "wall_s": round(wall, 3),
         "recorded_s": round(recorded, 3),
-        "speed_x_realtime": round(recorded * runs / wall, 2) if wall > 0 else None,
+        "speed_x_realtime": round(recorded * n_runs / wall, 2) if wall > 0 else None,
         "as_recorded": cmd.as_recorded,
         "robot": cmd.robot,
-        "sessions": sessions,
+        "episodes": entries,
         "modes": agg,
         "tests": tests,
     }
@@ -246,7 +259,9 @@ def run(args: argparse.Namespace) -> int:
         {
             "metrics": str(out / "metrics.json"),
             "wall_s": metrics_json["wall_s"],
-            "sessions": len(sessions),
+            "inputs": len(cmd.inputs),
+            "episodes": len(entries),
+            "counted": sum(bool(e["counted"]) for e in entries),
         },
         sys.stdout,
     )

@@ -47,7 +47,11 @@ class RunCommand:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    add_loop_options(parser, default_source="demo")
+    add_loop_options(
+        parser,
+        default_source="demo",
+        record_help="record the session into the folder DIR (created; must hold no session)",
+    )
     parser.add_argument("--realtime", action="store_true", help="run at the loop rate (live)")
     parser.add_argument(
         "--max-seconds",

@@ -22,23 +22,27 @@ import argparse
 import json
 import logging
 import sys
-import threading
-import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any
 
-from dsteleop.app.cli.options import LoopOptions, add_loop_options, loop_options
+from dsteleop.app.cli.options import (
+    LoopOptions,
+    add_loop_options,
+    check_video_complete,
+    loop_options,
+)
 from dsteleop.app.cli.signals import StopOnSignal
 from dsteleop.errors import ConfigError
-
-if TYPE_CHECKING:
-    from dsteleop.app.loop import TeleopLoop
 
 log = logging.getLogger(__name__)
 
 ALL_INTERFACES = ("0.0.0.0", "::", "")
-DEFAULT_RECORD_ROOT = Path("recordings")  # where "Start recording" writes without --record
+#: Where the page's "Start recording" writes without --record (never the sample sessions in
+#: the repository's recordings/).
+DEFAULT_RECORD_ROOT = Path("sessions")
+#: serve resets the task this long after each outcome [s] (`--reset-after`).
+RESET_AFTER_S = 4.0
 
 
 @dataclass(frozen=True)
@@ -58,7 +62,13 @@ class ServeCommand:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    add_loop_options(parser, default_source="auto")
+    add_loop_options(
+        parser,
+        default_source="auto",
+        record_help="record from the start, each session in a new folder "
+        "DIR/<date>-<time>-<mode>-<utensil>/; the page's Recording Start writes there too "
+        f"(default {DEFAULT_RECORD_ROOT}/)",
+    )
     parser.add_argument(
         "--host",
         default="127.0.0.1",
@@ -68,51 +78,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def command(args: argparse.Namespace) -> ServeCommand:
-    options = loop_options(args)
+    options = loop_options(args, reset_after_s=RESET_AFTER_S)
     if not 0 <= int(args.port) <= 65535:
         raise ConfigError(f"--port must be in 0..65535, got {args.port}")
     return ServeCommand(options, str(args.host), int(args.port))
-
-
-class DemoRestarter:
-    """Keeps the demo going: a few seconds after each outcome, the operator and the task
-    restart (through `Controls`, like the GUI's reset button).
-
-    Args:
-        loop: the running loop (its broadcaster and controls are used).
-        stop: set to end the thread.
-        delay_s: pause after an outcome before the restart [s].
-    """
-
-    def __init__(self, loop: TeleopLoop, stop: threading.Event, delay_s: float = 4.0) -> None:
-        self._loop = loop
-        self._stop = stop
-        self._delay_s = delay_s
-
-    def start(self) -> None:
-        threading.Thread(target=self._run, name="dsteleop-demo-restart", daemon=True).start()
-
-    def _run(self) -> None:
-        sub = self._loop.broadcaster.subscribe()
-        t_outcome: float | None = None
-        try:
-            while not self._stop.is_set():
-                snap = sub.wait(0.5)
-                if snap is None:
-                    continue
-                now = time.monotonic()
-                if not snap.outcome:
-                    t_outcome = None
-                elif t_outcome is None:
-                    t_outcome = now
-                elif now - t_outcome >= self._delay_s:
-                    # A task reset restarts the demo operator too (it sees the reset in
-                    # the next record), and re-anchors the mapping on the first fresh hand.
-                    self._loop.controls.reset()
-                    t_outcome = None
-                    self._stop.wait(1.0)
-        finally:
-            sub.close()
 
 
 def run(args: argparse.Namespace) -> int:
@@ -139,7 +108,6 @@ def run(args: argparse.Namespace) -> int:
     built = build(opts, realtime=True, export_scene=True, history_dir=opts.record, record_root=root)
     loop, spec = built.loop, built.source
     viewer = None
-    stop_demo = threading.Event()
     # Signals stop the loop from here on, also while closing: a second Ctrl-C during the
     # cleanup must not cut the recording's close short.
     with StopOnSignal(loop) as stopper:
@@ -158,8 +126,6 @@ def run(args: argparse.Namespace) -> int:
                 utensil = str(loop.plant.describe().get("utensil", "task"))
                 loop.start_recording(new_session_folder(opts.record, loop.mode.value, utensil))
             viewer.start()
-            if built.demo is not None:
-                DemoRestarter(loop, stop_demo).start()
             sys.stderr.write(
                 f"dsteleop serve: open {viewer.url} in a browser "
                 f"(source {spec}, mode {loop.mode.value}); Ctrl-C stops\n"
@@ -167,16 +133,19 @@ def run(args: argparse.Namespace) -> int:
             sys.stderr.flush()
             loop.run()
         finally:
-            stop_demo.set()
             if viewer is not None:
                 viewer.close()
             recording = loop.recording
             loop.close()  # closes the recording (complete), releases the camera and robot
-    summary = {
+    summary: dict[str, Any] = {
         "source": str(spec),
         "stopped_by": stopper.received or "end of run",
         "recording": None if recording is None else str(recording),
         "timing": loop.rate.summary(),
     }
+    if built.video is not None:
+        summary["video"] = built.video.end_note() if built.video.ended else "playing"
     sys.stdout.write(json.dumps(summary) + "\n")
+    if built.video is not None:
+        check_video_complete(built.video, opts.allow_partial, "the session was served")
     return 0

@@ -32,6 +32,8 @@ class LoopConfig:
         assist_speed: fraction of the policy's speed used while assisting, (0, 1].
         assist_goal_tolerance_m: assisting stops this close to the goal [m].
         input_delay_s: injected delay on the human input [s] (the paper's study used one).
+        reset_after_s: after an outcome, the loop resets the task (the next trial) this long
+            after it [s]; 0: never (the operator resets).
         arbitration: the arbitration hyper-parameters (with eq (2)'s reference bound).
     """
 
@@ -43,6 +45,7 @@ class LoopConfig:
     assist_speed: float = 0.5
     assist_goal_tolerance_m: float = 0.01
     input_delay_s: float = 0.0
+    reset_after_s: float = 0.0
     arbitration: ArbitrationConfig = field(default_factory=ArbitrationConfig)
 
     def __post_init__(self) -> None:
@@ -58,9 +61,12 @@ class LoopConfig:
                 isinstance(v, (int, float)) and math.isfinite(v) and v > 0
             ):
                 raise ConfigError(f"{name} must be a positive number, got {v!r}")
-        v = self.input_delay_s
-        if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-            raise ConfigError(f"input_delay_s must be a number >= 0, got {v!r}")
+        for name in ("input_delay_s", "reset_after_s"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not (
+                isinstance(v, (int, float)) and math.isfinite(v) and v >= 0
+            ):
+                raise ConfigError(f"{name} must be a number >= 0, got {v!r}")
         if self.assist_speed > 1:
             raise ConfigError(f"assist_speed must be in (0, 1], got {self.assist_speed!r}")
 

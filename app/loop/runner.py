@@ -38,7 +38,8 @@ from dsteleop.app.loop.config import LoopConfig
 from dsteleop.app.loop.controls import Controls, Requests
 from dsteleop.app.loop.timing import MonotonicClock, RateClock
 from dsteleop.app.ports import Clock, HandInput, HumanInput, Observer, Plant
-from dsteleop.app.session.schema import TickRecord, encode_event
+from dsteleop.app.session.episodes import EpisodeSplitter
+from dsteleop.app.session.schema import RecordingStatus, TickRecord, encode_event
 from dsteleop.app.session.video import FrameRecorder
 from dsteleop.app.session.writer import HistoryFile, Recorder, SessionWriter, new_session_folder
 from dsteleop.arbitration import HandState, Mode, OperatorHistory, dim_names, make_arbiter
@@ -95,6 +96,9 @@ class TeleopLoop:
         self.dims = dim_names(plant.finger_names)
         self._notes: list[str] = []
         self._recorder: Recorder | None = None
+        self._episodes = EpisodeSplitter()
+        self._recording_t0: float | None = None
+        self._t_outcome: float | None = None
         self._stop = threading.Event()
         # Frame-to-command latency [ms] of each new frame (its first command), recent ticks.
         self.latency_ms: deque[float] = deque(maxlen=18000)
@@ -105,6 +109,7 @@ class TeleopLoop:
         self.arbiter = make_arbiter(config.mode, config.arbitration)
         self.events_log: list[tuple[int, str]] = []
         self.state = tick.start(plant.reset(), self.arbiter, history)
+        self.utensil = str(plant.describe().get("utensil", ""))
         self.tick_index = 0
         self._reset_state: HandState | None = self.state.X_current  # in the next record
 
@@ -133,9 +138,20 @@ class TeleopLoop:
 
     def _reset_task(self, utensil: str | None) -> None:
         self.state = tick.start(self.plant.reset(utensil), self.arbiter, self.state.history)
+        self.utensil = str(self.plant.describe().get("utensil", utensil or ""))
         self._reset_state = self.state.X_current
         self.tick_index = 0
         self.events_log = []
+        self._t_outcome = None
+
+    def _reset_due(self, now_s: float) -> bool:
+        """`reset_after_s` has passed since the outcome (auto reset on)."""
+        after = self.config.reset_after_s
+        if after <= 0 or self.state.outcome is None:
+            return False
+        if self._t_outcome is None:
+            self._t_outcome = now_s
+        return now_s - self._t_outcome >= after
 
     def _apply(self, req: Requests) -> None:
         """Apply the operator's requests (in the loop's thread); each is recorded as a note."""
@@ -216,21 +232,29 @@ class TeleopLoop:
             **(extra or {}),
         }
         self._recorder = Recorder(SessionWriter(folder, meta))
+        self._episodes = EpisodeSplitter()
+        self._recording_t0 = None
         if self._frames is not None:
             self._frames.start(Path(folder))
         log.info("recording to %s", folder)
         return Path(folder)
 
     def stop_recording(self) -> None:
-        if self._recorder is None:
+        """Close the recording: the open episode ends "stopped", meta.json is completed."""
+        recorder = self._recorder
+        if recorder is None:
             return
         if self._frames is not None:
             self._frames.stop()
-        self._recorder.close(
-            {"outcome": self.outcome, "events": self.events_log, "timing": self.rate.summary()}
-        )
+        last = self._episodes.finish("stopped")
+        if last is not None:
+            recorder.end_episode(last)
+        recorder.close({"n_episodes": recorder.episodes, "timing": self.rate.summary()})
         log.info(
-            "recording closed: %s (%d ticks)", self._recorder.folder, self._recorder.writer.n_ticks
+            "recording closed: %s (%d ticks, %d episodes)",
+            recorder.folder,
+            recorder.writer.n_ticks,
+            recorder.episodes,
         )
         self._recorder = None
 
@@ -243,7 +267,10 @@ class TeleopLoop:
     def tick(self, t_start_s: float | None = None, jitter_s: float = 0.0) -> TickRecord:
         """Run one tick at the clock's current time; returns (and publishes) its record."""
         now = self.clock.now() if t_start_s is None else t_start_s
-        self._apply(self.controls.take())
+        requests = self.controls.take()
+        if self._reset_due(now) and not requests.reset:
+            requests = dataclasses.replace(requests, reset=True)  # the next trial
+        self._apply(requests)
         reset_state, self._reset_state = self._reset_state, None
         inp = self.hand.poll(now)
         goal = self.plant.goal()
@@ -290,12 +317,29 @@ class TeleopLoop:
             timing=timing,
             X_reset=reset_state,
         )
+        if self._recorder is not None:
+            record = self._record(self._recorder, record)
         for observer in self._observers:
             observer.observe(record)
-        if self._recorder is not None:
-            self._recorder.put(record)
         self.tick_index += 1
         return record
+
+    def _record(self, recorder: Recorder, record: TickRecord) -> TickRecord:
+        """Write the record; end an episode it ends; the record with the recording's state."""
+        line = recorder.lines
+        recorder.put(record)
+        ended = self._episodes.push(line, record, self.utensil)
+        if ended is not None:
+            recorder.end_episode(ended)
+        if self._recording_t0 is None:
+            self._recording_t0 = record.t_s
+        status = RecordingStatus(
+            folder=str(recorder.folder),
+            elapsed_s=record.t_s - self._recording_t0,
+            episodes=recorder.episodes,
+            episode=self._episodes.current,
+        )
+        return dataclasses.replace(record, recording=status)
 
     def _history_term(self) -> Array | None:
         key = (len(self.history), self.config.arbitration)

@@ -33,6 +33,8 @@ class KitchenPlant:
             (None: the task's default).
         goal_noise_rad: std-dev of the rotation noise on each goal [rad] (None: default).
         export_scene: compute per-tick link poses for a viewer.
+        time_limit_s: a trial without an outcome after this long fails (`timeout`) [s]
+            (None: the task's default).
     """
 
     finger_names: tuple[str, ...] = FINGER_NAMES
@@ -44,9 +46,12 @@ class KitchenPlant:
         goal_noise_m: float | None = None,
         goal_noise_rad: float | None = None,
         export_scene: bool = False,
+        time_limit_s: float | None = None,
     ) -> None:
         cfg = EnvConfig()
         task = cfg.task
+        if time_limit_s is not None:
+            task = dataclasses.replace(task, timeout_s=float(time_limit_s))
         if goal_noise_m is not None:
             task = dataclasses.replace(task, goal_noise_pos_m=float(goal_noise_m))
         if goal_noise_rad is not None:
@@ -139,5 +144,6 @@ def plant_from_meta(meta: dict[str, Any], export_scene: bool = False) -> Kitchen
         goal_noise_m=meta.get("goal_noise_m"),
         goal_noise_rad=meta.get("goal_noise_rad"),
         export_scene=export_scene,
+        time_limit_s=(meta.get("task") or {}).get("timeout_s"),
     )
     return plant

@@ -16,9 +16,12 @@ openness weigh alike:
     success, time    the task's outcome and its duration [s]
     mean_alpha       per dimension
 
-Across sessions: success rate (Laplace, adjusted-Wald CI), geometric-mean time (CI), and the
-paper's tests between modes (N-1 chi-squared on success, t-tests on log time and on the
-per-session cosine distance and agreement).
+A session holds episodes (one attempt at the task each, `session.episodes`); each replays on
+its own, from its own reset. Across episodes: success rate (Laplace, adjusted-Wald CI),
+geometric-mean time (CI), and the paper's tests between modes (N-1 chi-squared on success,
+t-tests on log time and on the per-episode cosine distance and agreement), over the episodes
+that ended with an outcome, each test with its n and flagged as not meaningful under
+`MIN_EPISODES` a mode.
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -35,6 +38,7 @@ from dsteleop.app.inputs.recorded import RecordedHandInput
 from dsteleop.app.loop import LoopConfig, TeleopLoop
 from dsteleop.app.loop.timing import ManualClock
 from dsteleop.app.ports import HandInput, Plant
+from dsteleop.app.session.episodes import Episode
 from dsteleop.app.session.reader import Session
 from dsteleop.app.session.schema import TickRecord
 from dsteleop.app.session.trace import Trace
@@ -135,7 +139,52 @@ def num(x: Any) -> float | None:
     return v if math.isfinite(v) else None
 
 
+#: Statistics over fewer episodes than this a mode are reported, and flagged as not
+#: meaningful (a chi-squared or t-test on a handful of trials says nothing).
+MIN_EPISODES = 5
+
+
+class Run(NamedTuple):
+    """One replay of one episode (or one video) in one mode.
+
+    Attributes:
+        name: the episode's name (`SESSION/epN`), or the video's.
+        session: the session's (or video's) name.
+        episode: the recorded episode (None for a video: one run, counted).
+        recorded_s: its recorded length [s].
+        trace: the replay.
+    """
+
+    name: str
+    session: str
+    episode: Episode | None
+    recorded_s: float
+    trace: Trace
+
+
+def episode_summaries(runs: Sequence[Run]) -> list[dict[str, Any]]:
+    """One entry per episode (in order of first appearance) with every mode's metrics."""
+    grouped: dict[str, list[Run]] = {}
+    for r in runs:
+        grouped.setdefault(r.name, []).append(r)
+    out = []
+    for name, group in grouped.items():
+        first = group[0]
+        ep = first.episode
+        entry = session_summary(name, first.recorded_s, [r.trace for r in group])
+        entry.update(
+            session=first.session,
+            episode=None if ep is None else ep.index,
+            end="video" if ep is None else ep.end,
+            counted=True if ep is None else ep.counted,
+            recorded_outcome=None if ep is None or ep.outcome is None else ep.outcome.reason,
+        )
+        out.append(entry)
+    return out
+
+
 def session_summary(name: str, recorded_s: float, traces: Sequence[Trace]) -> dict[str, Any]:
+    """The metrics of one episode (or video) in each mode it was replayed in."""
     modes: dict[str, Any] = {}
     for tr in traces:
         alpha = tr.step.alpha
@@ -155,13 +204,16 @@ def session_summary(name: str, recorded_s: float, traces: Sequence[Trace]) -> di
 
 
 def aggregate(
-    sessions: Sequence[dict[str, Any]], modes: Sequence[str]
+    entries: Sequence[dict[str, Any]], modes: Sequence[str]
 ) -> tuple[dict[str, Any], dict[str, Any]]:
-    """Per-mode aggregates over sessions and the paper's tests between modes."""
+    """Per-mode aggregates over the counted episodes (those that ended with an outcome, and
+    videos) and the paper's tests between modes, each with its n and whether it is
+    meaningful (`MIN_EPISODES` a mode at least)."""
     agg: dict[str, Any] = {}
     per: dict[str, dict[str, list[float]]] = {}
+    counted = [e for e in entries if e.get("counted", True)]
     for mode in modes:
-        rows = [s["modes"][mode] for s in sessions if mode in s["modes"]]
+        rows = [s["modes"][mode] for s in counted if mode in s["modes"]]
         succ = [bool(r["success"]) for r in rows]
         times = [r["time_s"] for r in rows if r["time_s"] and r["time_s"] > 0]
         cos = [r["cosine_distance"] for r in rows if r["cosine_distance"] is not None]
@@ -171,6 +223,7 @@ def aggregate(
         gt = metrics.geometric_mean(times) if len(times) >= 1 else None
         agg[mode] = {
             "n": len(rows),
+            "excluded": sum(1 for e in entries if mode in e["modes"]) - len(rows),
             "success_rate": None if sr is None else jsonable(sr),
             "time_s": None if gt is None else jsonable(gt),
             "cosine_distance": num(np.mean(cos)) if cos else None,
@@ -180,7 +233,13 @@ def aggregate(
     for i, a in enumerate(modes):
         for b in modes[i + 1 :]:
             pa, pb = per[a], per[b]
-            entry: dict[str, Any] = {}
+            na, nb = len(pa["success"]), len(pb["success"])
+            entry: dict[str, Any] = {"n": [na, nb], "meaningful": min(na, nb) >= MIN_EPISODES}
+            if not entry["meaningful"]:
+                entry["note"] = (
+                    f"{a} vs {b}: n = {na} and {nb} episodes; fewer than {MIN_EPISODES} a "
+                    "mode: the tests below are not meaningful"
+                )
             if pa["success"] and pb["success"]:
                 entry["success_n1_chi2"] = jsonable(
                     metrics.n1_chi_squared(
@@ -205,6 +264,11 @@ def aggregate(
                     entry[name] = jsonable(metrics.t_test(ya, yb))
             tests[f"{a}_vs_{b}"] = entry
     return agg, tests
+
+
+def test_notes(tests: dict[str, Any]) -> list[str]:
+    """The notes of the tests that are not meaningful, to say beside the results."""
+    return [str(t["note"]) for t in tests.values() if not t.get("meaningful", True)]
 
 
 def jsonable(obj: Any) -> Any:

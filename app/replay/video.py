@@ -16,6 +16,7 @@ from typing import Any
 from dsteleop.app.inputs.tracked import replayed_samples
 from dsteleop.app.loop import LoopConfig
 from dsteleop.app.replay.core import run_headless, session_config, simulated_plant
+from dsteleop.app.session.episodes import Episode
 from dsteleop.app.session.reader import Session
 from dsteleop.app.session.trace import Trace
 from dsteleop.arbitration import ArbitrationConfig, Mode
@@ -104,8 +105,9 @@ def frame_times(path: Path) -> list[float]:
 
 def replay_retracked(
     session: Session, modes: Sequence[Mode], allow_partial: bool = False
-) -> list[Trace]:
-    """Re-run tracking on the session's video, then the loop in each mode.
+) -> list[tuple[Episode, Trace]]:
+    """Re-run tracking on the session's video once, then the loop on every episode in each
+    mode; (episode, trace) pairs.
 
     The frame index (`frames.jsonl`) says how many frames the video must hold: every line
     is written after its frame, so even a session killed mid-recording has them all.
@@ -125,18 +127,21 @@ def replay_retracked(
             "(truncated or partly unreadable); --allow-partial accepts it"
         )
     mapping = MappingConfig(**_mapping_kwargs(session.meta.get("mapping", {})))
-    ticks = [r.t_s for r in session.records]
-    return [
-        run_headless(
-            session.name,
-            replayed_samples(samples, WorkspaceMapping(mapping), "re-tracked video"),
-            ticks,
-            session_config(session, m),
-            simulated_plant(session.meta.get("plant", {})),
-            session.history,
-        )
-        for m in modes
-    ]
+    out = []
+    for episode in session.episodes:
+        view = session.of_episode(episode)
+        ticks = [r.t_s for r in view.records]
+        for m in modes:
+            trace = run_headless(
+                view.name,
+                replayed_samples(samples, WorkspaceMapping(mapping), "re-tracked video"),
+                ticks,
+                session_config(view, m),
+                simulated_plant(view.meta.get("plant", {})),
+                view.history,
+            )
+            out.append((episode, trace))
+    return out
 
 
 def _mapping_kwargs(d: dict[str, Any]) -> dict[str, Any]:

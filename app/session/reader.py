@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import json
 import logging
 from collections.abc import Iterator
@@ -9,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from dsteleop.app.session.episodes import Episode, split
 from dsteleop.app.session.schema import READABLE, SCHEMA, TickRecord, decode
 from dsteleop.app.session.video import FRAMES, VIDEO
 from dsteleop.app.session.writer import META, TICKS
@@ -25,18 +28,54 @@ class Session:
     Attributes:
         folder: where it is.
         meta: its metadata (`recordings/README.md`).
-        records: every complete tick, in order.
+        records: every complete tick, in order (of the episode, in a view of one).
         truncated: the last line was cut short (a killed process) and was skipped.
+        episode: the episode this is a view of (`of_episode`), or None for the whole.
     """
 
     folder: Path
     meta: dict[str, Any]
     records: tuple[TickRecord, ...]
     truncated: bool
+    episode: Episode | None = None
 
     @property
     def name(self) -> str:
-        return self.folder.name
+        """The folder's name; with `/epN` for a view of episode N."""
+        base = self.folder.name
+        return base if self.episode is None else f"{base}/ep{self.episode.index}"
+
+    @functools.cached_property
+    def episodes(self) -> tuple[Episode, ...]:
+        """Its episodes, split from the ticks (`session.episodes`) as the recorder split
+        them; the utensil of each from the metadata when it says. One still open at the end
+        is "stopped" in a closed session and "incomplete" in a killed one."""
+        if self.episode is not None:
+            return (self.episode,)
+        found = split(self.records, "stopped" if self.meta.get("complete") else "incomplete")
+        utensils = {
+            int(e.get("index", -1)): str(e.get("utensil", ""))
+            for e in self.meta.get("episodes", ())
+            if isinstance(e, dict)
+        }
+        default = str(self.meta.get("plant", {}).get("utensil", ""))
+        return tuple(
+            dataclasses.replace(e, utensil=e.utensil or utensils.get(e.index) or default)
+            for e in found
+        )
+
+    def of_episode(self, episode: Episode) -> Session:
+        """A view of one episode: its ticks, and the plant metadata with its utensil, so
+        every replay of a session replays the episode."""
+        plant = dict(self.meta.get("plant", {}))
+        if episode.utensil:
+            plant["utensil"] = episode.utensil
+        return dataclasses.replace(
+            self,
+            meta={**self.meta, "plant": plant},
+            records=self.records[episode.first : episode.last + 1],
+            episode=episode,
+        )
 
     @property
     def complete(self) -> bool:
@@ -70,18 +109,29 @@ def is_session(folder: Path) -> bool:
     return (Path(folder) / META).is_file()
 
 
+def looks_like_session(folder: Path) -> bool:
+    """A session folder, or what is left of one without its metadata."""
+    return any((Path(folder) / n).is_file() for n in (META, TICKS, FRAMES))
+
+
 def read_session(folder: Path) -> Session:
     """Read a session folder; a truncated last tick line is skipped with a warning.
 
     Raises:
-        InputError: the folder is missing, is not a session, is of an unknown schema, or a
-            line before the last is corrupt (one line, naming the file and line).
+        InputError: the folder is missing, is not a session (no metadata), is of an unknown
+            schema, holds no tick, or a line before the last is corrupt (one line, naming the
+            file and line).
     """
     folder = Path(folder)
     meta_path = folder / META
     if not folder.is_dir():
         raise InputError(f"session not found: {folder}")
     if not meta_path.is_file():
+        if any((folder / name).is_file() for name in (TICKS, FRAMES, VIDEO)):
+            raise InputError(
+                f"{folder}: a session folder without its {META} (its metadata is lost), "
+                "which cannot be replayed"
+            )
         raise InputError(f"{folder} is not a dsteleop session (no {META})")
     try:
         meta = json.loads(meta_path.read_text(encoding="utf-8"))
@@ -113,6 +163,8 @@ def read_session(folder: Path) -> Session:
             records.append(decode(raw, dims))
         except InputError as exc:
             raise InputError(f"{folder / TICKS}:{lineno}: {exc}") from None
+    if not records:
+        raise InputError(f"{folder}: an empty session (no tick in {TICKS}): nothing to replay")
     return Session(folder, meta, tuple(records), truncated)
 
 

@@ -7,12 +7,14 @@ back into the same type, so every consumer handles one shape. It holds the arbit
 shape), so a new field of either reaches the recording and the view without an edit here
 beyond its encoding.
 
-JSON form (schema `dsteleop.session/2`; `recordings/README.md` lists the keys): states are
+JSON form (schema `dsteleop.session/3`; `recordings/README.md` lists the keys): states are
 flat lists, position (3), rotation matrix row-major (9), openness (F); per-dimension arrays
 are lists of 6 + F values; task events are "kind" or "kind:detail". Inputs of a replay (the
 hand, the robot's side, the times) keep full precision; outputs (the arbitration, the
 command) keep 10 significant digits; landmarks 4 decimals. Schema 1 (before the typed
 record) is read too: its notes and task events were one list, told apart here by kind.
+Schema 2 differs from 3 only in the metadata (3 lists the session's episodes,
+`session.episodes`) and in the status of ticks after the outcome (`finished`; 2 said `lost`).
 """
 
 from __future__ import annotations
@@ -34,8 +36,8 @@ from dsteleop.tracking.types import HandSample
 
 Array = NDArray[np.float64]
 
-SCHEMA = "dsteleop.session/2"
-READABLE = ("dsteleop.session/1", SCHEMA)
+SCHEMA = "dsteleop.session/3"
+READABLE = ("dsteleop.session/1", "dsteleop.session/2", SCHEMA)
 
 
 class Status(str, enum.Enum):
@@ -45,6 +47,23 @@ class Status(str, enum.Enum):
     LOST = "lost"  # no usable hand: the robot halts (or stands still)
     ASSIST = "assist"  # no usable hand, `--lost-policy assist`: the policy at reduced speed
     FINISHED = "finished"  # the task has its outcome (the reason says which): the robot halts
+
+
+@dataclass(frozen=True)
+class RecordingStatus:
+    """What a running recording has done so far, for the view (not written to the ticks).
+
+    Attributes:
+        folder: the session folder.
+        elapsed_s: loop time since the recording started [s].
+        episodes: episodes ended so far.
+        episode: the open episode's index, or None between episodes.
+    """
+
+    folder: str
+    elapsed_s: float
+    episodes: int
+    episode: int | None
 
 
 @dataclass(frozen=True)
@@ -69,6 +88,7 @@ class TickRecord:
         timing: loop timing [ms]: jitter, tick duration, latencies from capture.
         X_reset: the state the robot reset to at the start of this tick (the first tick and
             after a task reset), else None; a replay against the recorded robot starts there.
+        recording: the recording in progress, or None (for the view; not written).
     """
 
     k: int
@@ -87,6 +107,7 @@ class TickRecord:
     notes: tuple[str, ...] = ()
     timing: Mapping[str, float] = field(default_factory=dict)
     X_reset: HandState | None = None
+    recording: RecordingStatus | None = None
 
     @property
     def X_current(self) -> HandState:

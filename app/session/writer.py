@@ -2,8 +2,9 @@
 
 A session is a folder:
 
-    meta.json      written atomically (temp file + rename) at start, rewritten at close with
-                   the end time and outcome; schema version, dsteleop version, full config
+    meta.json      written atomically (temp file + rename) at start, rewritten as each episode
+                   ends (its outcome, duration, events) and at close; schema version,
+                   dsteleop version, full config
     ticks.jsonl    one JSON object per control tick (`schema.encode`), appended and flushed
     video.mp4      optional: the camera frames (`video.FrameRecorder`)
 
@@ -30,6 +31,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from dsteleop import __version__
+from dsteleop.app.session.episodes import Episode
 from dsteleop.app.session.schema import SCHEMA, TickRecord, encode
 from dsteleop.arbitration import OperatorHistory
 from dsteleop.errors import InputError
@@ -122,6 +124,16 @@ class SessionWriter:
         if self._fsync_every and self.n_ticks % self._fsync_every == 0:
             os.fsync(self._ticks.fileno())
 
+    def add_episode(self, episode: dict[str, Any]) -> None:
+        """An episode ended: fsync the ticks so far, then rewrite meta.json with it added to
+        `episodes` (`episodes.Episode.to_dict`)."""
+        if self._ticks is not None:
+            self._ticks.flush()
+            os.fsync(self._ticks.fileno())
+        episodes = [*self.meta.get("episodes", []), clean(episode)]
+        self.meta = {**self.meta, "episodes": episodes}
+        write_json_atomic(self.folder / META, self.meta)
+
     def close(self, extra_meta: dict[str, Any] | None = None) -> None:
         """Flush, fsync and close the tick log; rewrite meta.json with `extra_meta` added."""
         if self._ticks is None:
@@ -146,13 +158,21 @@ class SessionWriter:
 
 
 class Recorder:
-    """Encodes and writes tick records on its own thread (module docstring)."""
+    """Encodes and writes tick records, and the episodes as they end, on its own thread
+    (module docstring), in the order they were put.
+
+    Attributes:
+        lines: records put so far (the line number the next one gets).
+        episodes: episodes put so far.
+    """
 
     def __init__(self, writer: SessionWriter) -> None:
         self.writer = writer
-        self._q: queue.SimpleQueue[TickRecord | None] = queue.SimpleQueue()
+        self._q: queue.SimpleQueue[TickRecord | Episode | None] = queue.SimpleQueue()
         self._thread = threading.Thread(target=self._run, name="dsteleop-recorder", daemon=True)
         self._thread.start()
+        self.lines = 0
+        self.episodes = 0
 
     @property
     def folder(self) -> Path:
@@ -160,10 +180,19 @@ class Recorder:
 
     def put(self, record: TickRecord) -> None:
         self._q.put(record)
+        self.lines += 1
+
+    def end_episode(self, episode: Episode) -> None:
+        """Record an episode that ended (after the ticks already put)."""
+        self._q.put(episode)
+        self.episodes += 1
 
     def _run(self) -> None:
-        while (rec := self._q.get()) is not None:
-            self.writer.write_tick(encode(rec))
+        while (item := self._q.get()) is not None:
+            if isinstance(item, Episode):
+                self.writer.add_episode(item.to_dict())
+            else:
+                self.writer.write_tick(encode(item))
 
     def close(self, extra_meta: dict[str, Any]) -> None:
         """Write what is queued, then close the session with `extra_meta`."""
