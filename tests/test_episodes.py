@@ -192,3 +192,24 @@ def test_a_session_without_metadata_is_refused_not_replayed_as_a_video(
         assert main(["replay", str(target), "--modes", "DS", "--out", str(out)]) == 2
         (line,) = capsys.readouterr().err.strip().splitlines()
         assert "without its meta.json" in line and "lost-meta" in line
+
+
+def test_the_trajectory_plot_has_metres_goals_and_phases() -> None:
+    from dsteleop.app.replay.core import as_recorded
+    from dsteleop.app.replay.plots import trajectory_figure
+
+    session = read_session(SAMPLE)
+    trace = as_recorded(session.of_episode(session.episodes[0]))
+    fig = trajectory_figure("demo", [trace])
+    above, front, over_time = fig.axes[:3]
+    for ax in (above, front):
+        assert "[m]" in ax.get_xlabel() and "[m]" in ax.get_ylabel()
+        labels = ax.get_legend_handles_labels()[1]
+        assert "pick goal" in labels and "place goal" in labels
+    assert over_time.get_xlabel() == "time [s]" and "[m]" in over_time.get_ylabel()
+    box = over_time.get_legend()
+    assert box is not None
+    legend = [t.get_text() for t in box.get_texts()]
+    assert {"phase pick", "phase place", "phase done"} <= set(legend)
+    # The phases shaded: one span per stretch of a phase (pick, then place, then done).
+    assert len(over_time.patches) >= 3

@@ -153,6 +153,73 @@ def test_status_says_what_the_loop_does_and_why(records: list[TickRecord]) -> No
     assert "tabs" in text
 
 
+@pytest.fixture(scope="module")
+def finished_recording(tmp_path_factory: pytest.TempPathFactory) -> list[TickRecord]:
+    """The headless demo (DS, seed 0) recorded to its outcome and 1 s beyond: what the page
+    is fed after a success, with a recording running."""
+    loop = _demo_loop(export_scene=False).loop
+    out: list[TickRecord] = []
+    try:
+        loop.start_recording(tmp_path_factory.mktemp("rec") / "session")
+        while not loop.outcome and loop.tick_index < 3700:
+            out.append(loop.tick(loop.clock.now()))
+            _manual_clock(loop).advance(loop.config.dt_s)
+        for _ in range(30):
+            out.append(loop.tick(loop.clock.now()))
+            _manual_clock(loop).advance(loop.config.dt_s)
+    finally:
+        loop.close()
+    return out
+
+
+def test_status_after_the_outcome_says_finished_with_it(
+    finished_recording: list[TickRecord],
+) -> None:
+    from dsteleop.app.viewer.panel import status_html, status_view
+
+    last = finished_recording[-1]
+    assert last.outcome is not None
+    view = status_view(last)
+    word = "success" if last.outcome.success else "failure"
+    assert view.word == "finished" and view.detail.startswith(word)
+    assert view.colour == ("#1f9d55" if last.outcome.success else "#c0392b")
+    text = status_html(last)
+    assert 'data-status="finished"' in text and f'data-outcome="{word}"' in text
+    assert "lost" not in text and "task finished" not in text
+    # No fresh frame after the outcome: no latency that grows with the frame's age.
+    assert "latency" not in text
+
+
+def test_status_shows_the_recording_with_its_time_and_episodes(
+    finished_recording: list[TickRecord],
+) -> None:
+    from dsteleop.app.viewer.panel import status_html
+
+    first, last = finished_recording[0], finished_recording[-1]
+    assert first.recording is not None and first.recording.episode == 0
+    assert last.recording is not None and last.recording.episodes == 1
+    assert last.recording.episode is None  # between the outcome and the next reset
+    text = status_html(last)
+    m = re.search(
+        r'data-recording="([^"]+)" data-elapsed-s="([0-9.]+)" data-episodes="(\d+)"', text
+    )
+    assert m is not None and m.group(1).endswith("session") and m.group(3) == "1"
+    assert float(m.group(2)) == pytest.approx(last.recording.elapsed_s, abs=0.05)
+    assert "REC" in text and "1 ended" in text
+    assert 'data-recording=""' in status_html(dataclasses.replace(last, recording=None))
+
+
+def test_camera_image_fits_either_orientation() -> None:
+    from dsteleop.app.viewer.panel import CAMERA_BOX_PX, fit
+
+    w_box, h_box = CAMERA_BOX_PX
+    for w, h in ((640, 480), (1920, 1080), (540, 960), (480, 852)):
+        fw, fh = fit(w, h)
+        assert fw <= w_box and fh <= h_box and (fw == w_box or fh == h_box)
+        assert fw / fh == pytest.approx(w / h, rel=0.02)
+    assert fit(540, 960)[1] == h_box  # portrait: as tall as the box, not 569 px
+
+
 def test_alpha_history_keeps_a_window(records: list[TickRecord]) -> None:
     from dsteleop.app.viewer.panel import AlphaHistory
 
@@ -180,13 +247,13 @@ def test_camera_image_draws_the_tracked_landmarks(records: list[TickRecord]) -> 
 
     hand = _detected(records)
     assert hand.sample is not None and hand.sample.image is None  # the demo has no pixels
-    img = camera_image(hand, width_px=160)
+    img = camera_image(hand, box_px=(160, 160))
     assert img is not None and img.shape == (120, 160, 3) and img.dtype == np.uint8
     drawn = (img != 60).any(axis=2)
     assert drawn.sum() > 50  # skeleton drawn on the grey canvas
     assert (~drawn).mean() > 0.5  # ... which is the grey 60-level canvas elsewhere
     undetected = dataclasses.replace(hand.sample, detected=False)
-    canvas = camera_image(dataclasses.replace(hand, sample=undetected), width_px=160)
+    canvas = camera_image(dataclasses.replace(hand, sample=undetected), box_px=(160, 160))
     assert canvas is not None and (canvas == 60).all()  # no hand: the canvas only
     assert camera_image(None) is None
     assert camera_image(dataclasses.replace(hand, sample=None)) is None
@@ -212,7 +279,7 @@ def test_camera_image_shows_the_frames_pixels(records: list[TickRecord]) -> None
     want = cv2.resize(frame, (160, 90), interpolation=cv2.INTER_AREA)[:, :, ::-1]
     # Without a hand the image is the frame itself, downscaled, in RGB order.
     bare = dataclasses.replace(hand.sample, image=frame, detected=False)
-    img = camera_image(dataclasses.replace(hand, sample=bare), width_px=160)
+    img = camera_image(dataclasses.replace(hand, sample=bare), box_px=(160, 160))
     assert img is not None and img.shape == (90, 160, 3) and img.dtype == np.uint8
     np.testing.assert_array_equal(img, want)
     assert (img[:, :70, 2] == 255).all() and (img[:, :70, 0] == 0).all()  # blue on the left
@@ -220,7 +287,7 @@ def test_camera_image_shows_the_frames_pixels(records: list[TickRecord]) -> None
     assert img.std() > 50 and not (img == 60).all()
     # With a hand, the landmarks are drawn over the frame's pixels.
     seen = dataclasses.replace(hand.sample, image=frame)
-    img = camera_image(dataclasses.replace(hand, sample=seen), width_px=160)
+    img = camera_image(dataclasses.replace(hand, sample=seen), box_px=(160, 160))
     assert img is not None and img.shape == want.shape
     changed = (img != want).any(axis=2)
     assert changed.sum() > 50 and (~changed).mean() > 0.5

@@ -95,9 +95,15 @@ def _serve(*args: str) -> Iterator[str]:
 
 
 @pytest.fixture(scope="module")
-def served() -> Iterator[str]:
-    """`dsteleop serve --source demo` on a free local port; its URL. Stopped with Ctrl-C."""
-    with _serve("--source", "demo") as url:
+def recordings(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return tmp_path_factory.mktemp("recordings")
+
+
+@pytest.fixture(scope="module")
+def served(recordings: Path) -> Iterator[str]:
+    """`dsteleop serve --source demo --record DIR` on a free local port; its URL. Stopped
+    with Ctrl-C."""
+    with _serve("--source", "demo", "--record", str(recordings)) as url:
         yield url
 
 
@@ -164,7 +170,12 @@ def test_page_shows_the_scene_and_live_gauges(served: str, browser: Browser) -> 
         # The demo operator moves: some value of some gauge changes within seconds.
         _wait(lambda: _gauges(page) != first, 30.0, "the gauges to change", page)
         status = _status(page)
-        assert status["mode"] == "DS" and status["status"] in ("tracking", "lost", "assist")
+        assert status["mode"] == "DS" and status["status"] in (
+            "tracking",
+            "lost",
+            "assist",
+            "finished",
+        )
         ticks = int(status["tick"])
         _wait(lambda: int(_status(page)["tick"]) != ticks, 10.0, "the loop to tick", page)
         # Dismiss viser's "software WebGL" notice, then keep a screenshot.
@@ -210,6 +221,53 @@ def test_controls_in_the_page_reach_the_loop(served: str, browser: Browser) -> N
         before = int(_status(page)["tick"])
         page.get_by_role("button", name="Reset task").click()
         _wait(lambda: int(_status(page)["tick"]) < before, 20.0, "the task to restart", page)
+    finally:
+        page.close()
+
+
+_STATUS_JS = """e => ({
+    ...e.dataset,
+    line: e.querySelector('.dst-status-line').innerText,
+    colour: e.querySelector('.dst-status-line b').style.color,
+})"""
+
+
+def test_status_after_a_success_and_the_recording_indicator(
+    served: str, browser: Browser, recordings: Path
+) -> None:
+    """After the demo's success the status says finished, with the outcome, in green (never
+    "lost"); the recording running since the start shows its time and episodes; the gauges'
+    marks are explained on the page."""
+    page = _open(browser, served)
+    try:
+        legend = page.locator(".dst-legend").inner_text()
+        assert all(w in legend for w in ("P(H)", "P(R)", "B", "robot", "operator")), legend
+        rec = page.locator(".dst-rec")
+        rec.wait_for(state="attached")
+        data = rec.evaluate("e => ({...e.dataset})")
+        assert Path(data["recording"]).parent == recordings, data
+        assert "REC" in rec.inner_text()
+        # The demo (DS, seed 0) succeeds; the task restarts 4 s after each outcome, so the
+        # status, its words and its colour are read in one go.
+        seen: list[dict[str, str]] = []
+
+        def finished() -> bool:
+            snap = page.eval_on_selector(".dst-status", _STATUS_JS)
+            seen.append(snap)
+            return bool(snap["status"] == "finished" and snap["outcome"] == "success")
+
+        _wait(finished, 150.0, "the status after a success", page)
+        snap = seen[-1]
+        line = snap["line"]
+        assert line.startswith("finished") and "success" in line and "lost" not in line, line
+        assert snap["colour"] == "rgb(31, 157, 85)", snap  # green
+        _wait(
+            lambda: int(rec.evaluate("e => e.dataset.episodes")) >= 1,
+            10.0,
+            "the episode counted in the indicator",
+            page,
+        )
+        assert float(rec.evaluate("e => e.dataset.elapsedS")) > 5.0
     finally:
         page.close()
 
@@ -331,8 +389,8 @@ def test_camera_panel_shows_the_videos_pixels(shared_data: Path, browser: Browse
             png = _camera_img(page).first.screenshot()
         finally:
             page.close()
-    # The frame downscaled to the panel's width, with the video's portrait aspect.
-    assert img.shape == (569, 320, 3) and list(natural) == [320, 569], (img.shape, natural)
+    # The portrait frame scaled to fit the panel's box (not 569 px tall), its aspect kept.
+    assert img.shape == (300, 169, 3) and list(natural) == [169, 300], (img.shape, natural)
     # A picture, not the uniform grey canvas (std 0) nor the canvas with a hand drawn on it.
     assert img.std() > MIN_PICTURE_STD, img.std()
     assert _grey_fraction(img) < 0.05

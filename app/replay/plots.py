@@ -1,4 +1,6 @@
-"""PNG plots of replayed runs: alpha_i, P(H), P(R), B over time; hand and robot paths."""
+"""PNG plots of replayed runs: alpha_i, P(H), P(R), B over time; per episode, the hand's and
+the robot's paths in metres with the goals, and their positions over time with the task's
+phases."""
 
 from __future__ import annotations
 
@@ -8,17 +10,100 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import NDArray
+
+from dsteleop.robot.task import Phase
 
 if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
     from dsteleop.app.session.trace import Trace
+
+Array = NDArray[np.float64]
 
 
 def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
 
 
+PHASE_SHADES = {Phase.PICK: "#dbe9f6", Phase.PLACE: "#fde2c8", Phase.DONE: "#e0e0e0"}
+AXES = ("x", "y", "z")
+
+
+def _goals(tr: Trace) -> list[tuple[str, Array]]:
+    """The goals the robot knew in the run, in order: ("pick goal", p), ("place goal", p)."""
+    out: list[tuple[str, Array]] = []
+    for phase in (Phase.PICK, Phase.PLACE):
+        rows = [k for k, ph in enumerate(tr.phases) if ph is phase and np.isfinite(tr.p_goal[k, 0])]
+        if rows:
+            out.append((f"{phase.value} goal", tr.p_goal[rows[0]]))
+    return out
+
+
+def _phase_spans(tr: Trace) -> list[tuple[Phase, float, float]]:
+    """(phase, start [s], end [s]) of each stretch of one phase."""
+    spans: list[tuple[Phase, float, float]] = []
+    t = tr.t_s
+    for k, ph in enumerate(tr.phases):
+        end = float(t[k + 1]) if k + 1 < len(t) else float(t[k])
+        if spans and spans[-1][0] is ph:
+            spans[-1] = (ph, spans[-1][1], end)
+        else:
+            spans.append((ph, float(t[k]), end))
+    return spans
+
+
+def trajectory_figure(name: str, traces: Sequence[Trace]) -> Figure:
+    """The paths of one episode, in the robot base frame with axes in metres: the operator's
+    mapped hand and the robot's palm in each mode, from above (y-x) and from the front
+    (y-z), with the goals the robot knew; and x, y, z over time with the task's phases
+    shaded (pick, place, done) and the goals as dashed lines."""
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
+
+    fig = plt.figure(figsize=(12, 8))
+    grid = fig.add_gridspec(2, 2, height_ratios=(1.2, 1.0))
+    views = (fig.add_subplot(grid[0, 0]), fig.add_subplot(grid[0, 1]))
+    ph = traces[0].p_human
+    goals = _goals(traces[0])
+    for ax, (a, b, title) in zip(views, ((1, 0, "from above"), (1, 2, "from the front"))):
+        ax.plot(ph[:, a], ph[:, b], color="tab:blue", lw=1.5, label="operator (mapped hand)")
+        for tr in traces:
+            ax.plot(tr.p_robot[:, a], tr.p_robot[:, b], lw=1.0, label=f"robot, {tr.mode.value}")
+        for (label, p), marker in zip(goals, ("o", "s")):
+            ax.plot(p[a], p[b], marker, ms=9, mfc="none", mew=2, color="black", label=label)
+        ax.set_xlabel(f"{AXES[a]} [m] (base frame, y left)")
+        ax.set_ylabel(f"{AXES[b]} [m]")
+        ax.set_title(f"{title} ({AXES[a]}-{AXES[b]})")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.grid(alpha=0.3)
+    views[0].legend(fontsize=8, loc="best")
+    over_time = fig.add_subplot(grid[1, :])
+    first = traces[0]
+    for phase, t0, t1 in _phase_spans(first):
+        over_time.axvspan(t0, t1, color=PHASE_SHADES[phase], lw=0)
+    colours = ("tab:red", "tab:green", "tab:purple")
+    for i, c in enumerate(colours):
+        over_time.plot(first.t_s, first.p_robot[:, i], color=c, lw=1.2, label=f"robot {AXES[i]}")
+        over_time.plot(first.t_s, ph[:, i], color=c, lw=0.8, ls=":", label=f"operator {AXES[i]}")
+        for _, p in goals:
+            over_time.axhline(p[i], color=c, lw=0.7, ls="--")
+    handles, labels = over_time.get_legend_handles_labels()
+    names = [f"phase {p.value}" for p in PHASE_SHADES]
+    phases = [Patch(color=PHASE_SHADES[p], label=n) for p, n in zip(PHASE_SHADES, names)]
+    over_time.legend([*handles, *phases], [*labels, *names], fontsize=7, ncol=5)
+    over_time.set_xlabel("time [s]")
+    over_time.set_ylabel("position [m] (dashed: goals)")
+    over_time.set_title(f"{first.mode.value} run: position over time, phases shaded")
+    over_time.grid(alpha=0.3)
+    fig.suptitle(f"{name}: operator and robot paths, robot base frame [m]")
+    fig.tight_layout()
+    return fig
+
+
 def plot_traces(traces: Sequence[Trace], out: Path) -> list[Path]:
-    """One figure per run (arbitration over time) and one per session (paths); returns files."""
+    """One figure per run (arbitration over time) and one per episode (`trajectory_figure`);
+    returns the files."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -53,24 +138,11 @@ def plot_traces(traces: Sequence[Trace], out: Path) -> list[Path]:
         plt.close(fig)
         files.append(f)
 
-    by_session: dict[str, list[Trace]] = {}
+    by_episode: dict[str, list[Trace]] = {}
     for tr in traces:
-        by_session.setdefault(tr.name, []).append(tr)
-    for name, trs in by_session.items():
-        fig, ax = plt.subplots(1, 2, figsize=(10, 4.5))
-        ph = trs[0].p_human
-        for k, (a, b, label) in enumerate(((1, 0, "y-x (top view)"), (1, 2, "y-z (front view)"))):
-            ax[k].plot(ph[:, a], ph[:, b], color="tab:green", lw=1.5, label="operator")
-            for tr in trs:
-                ax[k].plot(
-                    tr.p_robot[:, a], tr.p_robot[:, b], lw=1.0, label=f"robot {tr.mode.value}"
-                )
-            ax[k].set_title(label)
-            ax[k].set_aspect("equal", adjustable="datalim")
-            ax[k].grid(alpha=0.3)
-        ax[0].legend(fontsize=8)
-        fig.suptitle(f"{name}: operator and robot trajectories (base frame, m)")
-        fig.tight_layout()
+        by_episode.setdefault(tr.name, []).append(tr)
+    for name, trs in by_episode.items():
+        fig = trajectory_figure(name, trs)
         f = out / f"{_safe(name)}_trajectories.png"
         fig.savefig(f, dpi=80)
         plt.close(fig)

@@ -17,6 +17,7 @@ import html
 import importlib
 import math
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from importlib import resources
 from string import Template
 from typing import Any
@@ -25,20 +26,29 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dsteleop.app.ports import HumanInput
-from dsteleop.app.session.schema import Status, TickRecord
+from dsteleop.app.session.schema import RecordingStatus, Status, TickRecord
 from dsteleop.arbitration import ArbitrationStep
 
 Array = NDArray[np.float64]
 Image = NDArray[np.uint8]
 
-STATUS_HEX = {Status.TRACKING: "#1f9d55", Status.ASSIST: "#1f9d55", Status.LOST: "#c0392b"}
+GREEN, AMBER, RED, GREY = "#1f9d55", "#d68910", "#c0392b", "#7f8c8d"
+#: Reasons of a source that has no more input (`HandInput.end_reason`): shown as "ended".
+ENDED_REASONS = ("video ended", "recording ended", "script ended")
 # One colour per dimension in the plot: translation, rotation, fingers.
 DIM_COLOURS: tuple[str, ...] = (
     "#d62728", "#2ca02c", "#1f77b4",  # x y z
     "#ff7f0e", "#9467bd", "#8c564b",  # roll pitch yaw
     "#e377c2", "#7f7f7f", "#bcbd22", "#17becf", "#393b79", "#637939",  # fingers
 )  # fmt: skip
-CAMERA_WIDTH_PX = 320
+#: The camera image fits this box [px] (width, height) whatever its orientation: a portrait
+#: phone frame must not push the controls below it off the screen.
+CAMERA_BOX_PX = (320, 300)
+#: The alpha plot's axes, with their units.
+PLOT_AXES: tuple[dict[str, Any], ...] = (
+    {"label": "time over the last 10 s [s]"},
+    {"label": "alpha: robot's share (0 operator, 1 robot)"},
+)
 # MediaPipe Hands' 21-landmark skeleton (wrist 0; thumb 1-4; index 5-8; ...; little 17-20).
 HAND_CONNECTIONS: tuple[tuple[int, int], ...] = (
     (0, 1), (1, 2), (2, 3), (3, 4), (0, 5), (5, 6), (6, 7), (7, 8), (5, 9), (9, 10),
@@ -137,6 +147,61 @@ def _timing_items(
     return out
 
 
+@dataclass(frozen=True)
+class StatusView:
+    """What the status line says about a tick: a word, its detail and its colour.
+
+    Attributes:
+        word: `tracking` (the operator's hand drives the robot), `assist` (no hand; the
+            robot goes on to its goal), `lost` (no usable hand: the robot halts), `ended`
+            (the video or recording has no more frames), `finished` (the task has its
+            outcome; the detail says which).
+        detail: the reason or the outcome ("no hand", "success (in_bin)"), or "".
+        colour: of the dot and the word: green tracking and success, amber assist, red
+            lost and failure, grey ended.
+    """
+
+    word: str
+    detail: str
+    colour: str
+
+
+def status_view(record: TickRecord) -> StatusView:
+    """The status of a tick as the page shows it (`StatusView`)."""
+    if record.status is Status.FINISHED:
+        o = record.outcome
+        return StatusView("finished", record.reason, GREEN if o is not None and o.success else RED)
+    if record.status is Status.TRACKING:
+        return StatusView("tracking", "", GREEN)
+    if record.status is Status.ASSIST:
+        return StatusView("assist", record.reason, AMBER)
+    if record.reason in ENDED_REASONS:
+        return StatusView("ended", record.reason, GREY)
+    return StatusView("lost", record.reason, RED)
+
+
+def _clock(seconds: float) -> str:
+    s = max(0, int(seconds))
+    return (
+        f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}" if s >= 3600 else f"{s // 60}:{s % 60:02d}"
+    )
+
+
+def recording_html(rec: RecordingStatus | None) -> str:
+    """The recording indicator: a red dot, the elapsed time and the episodes ("" when not
+    recording)."""
+    if rec is None:
+        return '<div class="dst-rec-off" data-recording="">not recording</div>'
+    current = "between episodes" if rec.episode is None else f"episode {rec.episode + 1}"
+    folder = html.escape(rec.folder)
+    return (
+        f'<div class="dst-rec" data-recording="{folder}" data-elapsed-s="{rec.elapsed_s:.1f}" '
+        f'data-episodes="{rec.episodes}" title="recording into {folder}">'
+        f'<span class="dst-rec-dot"></span><b>REC</b> {_clock(rec.elapsed_s)} &middot; '
+        f"{current} &middot; {rec.episodes} ended</div>"
+    )
+
+
 def status_html(
     record: TickRecord,
     viewer: Mapping[str, Any] | None = None,
@@ -151,8 +216,8 @@ def status_html(
         rate_hz: the loop rate measured from recent ticks [Hz], if known.
         jitter_max_ms: the largest start-time jitter of the last second's ticks [ms].
     """
-    status = record.status
-    reason = f" &mdash; {html.escape(record.reason)}" if record.reason else ""
+    view = status_view(record)
+    detail = f" &mdash; {html.escape(view.detail)}" if view.detail else ""
     outcome = record.outcome
     outcome_text = "" if outcome is None else ("success" if outcome.success else "failure")
     out_col = {"success": "#1f9d55", "failure": "#c0392b"}.get(outcome_text, "#555")
@@ -162,22 +227,27 @@ def status_html(
     ]
     if outcome_text:
         items.append(("outcome", f'<b style="color:{out_col}">{outcome_text}</b>'))
-    items += _timing_items(record.timing, rate_hz, jitter_max_ms)
+    timing = record.timing
+    if record.status is not Status.TRACKING:  # no fresh frame: its age is no latency
+        timing = {k: v for k, v in timing.items() if not k.startswith("capture_to")}
+    items += _timing_items(timing, rate_hz, jitter_max_ms)
     if viewer:
         items += [(k, html.escape(str(v))) for k, v in viewer.items()]
     cells = " ".join(
         f'<span class="dst-item"><span class="dst-key">{k}</span> {v}</span>' for k, v in items
     )
     return _template("status.html").substitute(
-        status=html.escape(status.value),
+        status=html.escape(view.word),
+        reason_attr=html.escape(view.detail),
         mode=html.escape(record.mode.value),
         phase=html.escape(record.phase.value),
         outcome=outcome_text,
         tick=int(record.k),
         rate="" if rate_hz is None else f"{rate_hz:.2f}",
-        colour=STATUS_HEX.get(status, "#555"),
-        reason=reason,
+        colour=view.colour,
+        reason=detail,
         items=cells,
+        recording=recording_html(record.recording),
     )
 
 
@@ -209,6 +279,11 @@ class AlphaHistory:
         k = min(self._n, self._t.size)
         t = self._t[-k:] - (self._t[-k] if k else 0.0)
         return (t, *(row[-k:] for row in self._a))
+
+
+def legend_html() -> str:
+    """What the gauges' bars and marks mean, shown on the page under them."""
+    return asset("gauge_legend.html").strip()
 
 
 def plot_series(dims: Sequence[str]) -> tuple[dict[str, Any], ...]:
@@ -246,10 +321,16 @@ def _draw_landmarks(canvas: Image, landmarks: Array) -> None:
         cv2.circle(canvas, (int(p[0]), int(p[1])), 3, (255, 140, 0), -1, cv2.LINE_AA)
 
 
-def camera_image(hand: HumanInput | None, width_px: int = CAMERA_WIDTH_PX) -> Image | None:
+def fit(width_px: int, height_px: int, box_px: tuple[int, int] = CAMERA_BOX_PX) -> tuple[int, int]:
+    """(width, height) [px] of an image of this size scaled to fit `box_px`, aspect kept."""
+    scale = min(box_px[0] / max(1, width_px), box_px[1] / max(1, height_px))
+    return max(1, round(width_px * scale)), max(1, round(height_px * scale))
+
+
+def camera_image(hand: HumanInput | None, box_px: tuple[int, int] = CAMERA_BOX_PX) -> Image | None:
     """A small RGB image of the tracked hand: the camera frame (or a grey canvas for
-    sources without pixels, such as the demo operator) downscaled to `width_px`, with the
-    landmarks drawn. None when there is nothing to show."""
+    sources without pixels, such as the demo operator) scaled to fit `box_px` (landscape or
+    portrait), with the landmarks drawn. None when there is nothing to show."""
     sample = None if hand is None else hand.sample
     if sample is None:
         return None
@@ -259,14 +340,12 @@ def camera_image(hand: HumanInput | None, width_px: int = CAMERA_WIDTH_PX) -> Im
     cv2: Any = importlib.import_module("cv2")
     if image is not None:
         src = np.asarray(image)
-        scale = width_px / src.shape[1]
-        small = cv2.resize(
-            src, (width_px, max(1, round(src.shape[0] * scale))), interpolation=cv2.INTER_AREA
-        )
+        size = fit(src.shape[1], src.shape[0], box_px)
+        small = cv2.resize(src, size, interpolation=cv2.INTER_AREA)
         canvas: Image = np.ascontiguousarray(small[:, :, ::-1])  # BGR -> RGB
     else:
-        w, h = sample.width_px or 640, sample.height_px or 480
-        canvas = np.full((max(1, round(h * width_px / w)), width_px, 3), 60, dtype=np.uint8)
+        w, h = fit(sample.width_px or 640, sample.height_px or 480, box_px)
+        canvas = np.full((h, w, 3), 60, dtype=np.uint8)
     if sample.detected and landmarks is not None:
         _draw_landmarks(canvas, np.asarray(landmarks, dtype=np.float64))
     return canvas

@@ -40,9 +40,11 @@ from dsteleop.app.loop.broadcast import Broadcaster, Subscription
 from dsteleop.app.loop.controls import Controls
 from dsteleop.app.session.schema import TickRecord
 from dsteleop.app.viewer.panel import (
+    PLOT_AXES,
     AlphaHistory,
     camera_image,
     gauges_html,
+    legend_html,
     plot_series,
     status_html,
     style_html,
@@ -291,6 +293,7 @@ class Viewer:
             '<div class="dst-status" data-status="waiting">waiting for the loop&hellip;</div>'
         )
         self._gauges = gui.add_html('<div class="dst-gauges" data-tick="-1"></div>')
+        gui.add_html(legend_html())
         self._plot_folder = gui.add_folder("Authority over time (alpha)")
         self._camera_folder = gui.add_folder("Camera")
         with self._camera_folder:
@@ -356,6 +359,7 @@ class Viewer:
                 data=(np.zeros(2), *(np.zeros(2) for _ in dims)),
                 series=plot_series(dims),  # type: ignore[arg-type]
                 scales=cast(Any, {"x": {"time": False, "auto": True}, "y": {"range": [0, 1]}}),
+                axes=cast(Any, PLOT_AXES),
                 legend={"show": True},
                 height=180,
             )
