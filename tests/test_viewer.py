@@ -603,6 +603,57 @@ def test_serve_stops_cleanly_with_a_complete_recording(tmp_path: Path, sig: int)
     assert "Traceback" not in err
 
 
+@pytest.mark.slow
+def test_serve_takes_the_loop_options_of_run(tmp_path: Path) -> None:
+    """`serve` and `run` share one definition of the loop options: the ones a user missed
+    in serve (--lost-policy, --seed, --rate) and the trial's (--time-limit, --reset-after)
+    reach the loop, as its recorded configuration shows."""
+    from dsteleop.app.session.reader import read_session
+
+    port = _free_port()
+    options = ["--lost-policy", "assist", "--seed", "3", "--rate", "20"]
+    options += ["--time-limit", "50", "--reset-after", "2.5", "--mode", "S"]
+    proc = subprocess.Popen(
+        [
+            *DSTELEOP,
+            "serve",
+            "--source",
+            "demo",
+            "--port",
+            str(port),
+            "--record",
+            str(tmp_path),
+            *options,
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stderr is not None
+        deadline = time.monotonic() + 60.0
+        while time.monotonic() < deadline:
+            line = proc.stderr.readline()
+            if f"http://127.0.0.1:{port}/" in line or not line:
+                break
+        time.sleep(2.0)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    session = read_session(Path(json.loads(out.strip().splitlines()[-1])["recording"]))
+    loop = session.meta["loop"]
+    assert loop["lost_policy"] == "assist" and loop["rate_hz"] == 20.0
+    assert loop["reset_after_s"] == 2.5 and loop["mode"] == "S"
+    assert session.meta["plant"]["seed"] == 3 and session.meta["seed"] == 3
+    assert session.meta["plant"]["task"]["timeout_s"] == 50.0
+    dt = np.diff([r.t_s for r in session.records])
+    assert np.median(dt) == pytest.approx(1 / 20, abs=2e-3)  # ticks 50 ms apart
+
+
 def _stalled_client(port: int) -> socket.socket:
     """A websocket client that completes the handshake and then never reads."""
     import base64
