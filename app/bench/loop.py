@@ -7,10 +7,16 @@ threads, DS arbitration and the PyBullet robot in the loop. Reports start-time j
 (p50/p99/max), tick duration, overruns, and frame-to-command latency (capture of a frame to
 the robot command computed from it; p50/p95/p99). Falls back to the demo source when the
 test-data folder is not given (`--data DIR`, docs/test-data.md).
+
+A second run, `loop_recording_video`, measures the same while the session is recorded, as
+`run --record DIR --record-video` does: every tick to `ticks.jsonl` (recorder thread) and
+every camera frame to the crash-safe `video.mp4` (H.264, its own writer thread), into a
+temporary folder that is removed afterwards.
 """
 
 from __future__ import annotations
 
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -19,10 +25,11 @@ from dsteleop.app.inputs.tracked import TrackedHandInput
 from dsteleop.app.loop import LoopConfig, TeleopLoop
 from dsteleop.app.loop.timing import raise_priority
 from dsteleop.app.plants.kitchen import KitchenPlant
+from dsteleop.app.session.video import FrameRecorder
 from dsteleop.arbitration import Mode
 from dsteleop.tracking.mapping import WorkspaceMapping
 from dsteleop.tracking.pipeline import HandTracker, TrackingStream
-from dsteleop.tracking.sources import VideoFileSource
+from dsteleop.tracking.sources import FrameSource, VideoFileSource
 
 VIDEO = "open_hand_wave_landscape.mp4"
 
@@ -37,41 +44,63 @@ def shared_video() -> Path | None:
 def run(quick: bool = False) -> dict[str, Any]:
     seconds = 10.0 if quick else 60.0
     raise_priority()  # as `dsteleop serve` does
+    out = {"loop": _one(seconds, record=False)}
+    with tempfile.TemporaryDirectory(prefix="dsteleop-bench-") as tmp:
+        out["loop_recording_video"] = _one(seconds, record=True, folder=Path(tmp) / "session")
+    return out
+
+
+def _one(seconds: float, record: bool, folder: Path | None = None) -> dict[str, Any]:
+    """One measured run (module docstring), recording into `folder` when `record`."""
     video = shared_video()
-    plant = KitchenPlant("spoon", seed=0)
-    if video is not None:
-        stream = TrackingStream(VideoFileSource(video, realtime=True, loop=True), HandTracker())
-        hand = TrackedHandInput.from_stream(stream.start(), WorkspaceMapping())
-        source = f"video {video.name} (looping, MediaPipe full model)"
-    else:
+    if video is None:
         from dsteleop.app.cli.compose import build
         from dsteleop.app.cli.options import LoopOptions
 
-        plant.close()
         built = build(LoopOptions.of("demo", LoopConfig(mode=Mode.DS)), realtime=True)
-        return _measure(built.loop, seconds, "demo (synthetic operator)")
-    loop = TeleopLoop(LoopConfig(mode=Mode.DS), hand, plant)
-    return _measure(loop, seconds, source)
+        return _measure(built.loop, seconds, "demo (synthetic operator, no pixels)", folder)
+    plant = KitchenPlant("spoon", seed=0)
+    source: FrameSource = VideoFileSource(video, realtime=True, loop=True)
+    frames = FrameRecorder(source) if record else None
+    stream = TrackingStream(frames or source, HandTracker())
+    hand = TrackedHandInput.from_stream(stream.open(), WorkspaceMapping())
+    loop = TeleopLoop(LoopConfig(mode=Mode.DS), hand, plant, frame_recorder=frames)
+    what = f"video {video.name} (looping, MediaPipe full model)"
+    return _measure(loop, seconds, what, folder, frames)
 
 
 def _measure(
-    loop: TeleopLoop, seconds: float, source: str, warmup_s: float = 2.0
+    loop: TeleopLoop,
+    seconds: float,
+    source: str,
+    folder: Path | None = None,
+    frames: FrameRecorder | None = None,
+    warmup_s: float = 2.0,
 ) -> dict[str, Any]:
+    recorded: dict[str, Any] = {}
     try:
         # Warm-up: the first frames load the model and fill caches; then measure.
         loop.run(max_ticks=round(warmup_s * loop.config.rate_hz))
+        if folder is not None:
+            loop.start_recording(folder)  # resets the task: a new episode, as a user's would
         loop.rate.reset_stats()
         loop.latency_ms.clear()
         loop.run(max_ticks=round(seconds * loop.config.rate_hz))
         summary = loop.timing_summary()
     finally:
         loop.close()
-    return {
-        "loop": {
-            "source": source,
-            "seconds": seconds,
-            "rate_hz_target": loop.config.rate_hz,
-            "rate_hz": round(summary["ticks"] / seconds, 3),
-            **summary,
+    if folder is not None:
+        video = folder / "video.mp4"
+        recorded = {
+            "recorded_ticks": sum(1 for _ in (folder / "ticks.jsonl").open()),
+            "recorded_frames": 0 if frames is None else frames.written,
+            "video_bytes_per_s": round(video.stat().st_size / seconds) if video.is_file() else 0,
         }
+    return {
+        "source": source,
+        "seconds": seconds,
+        "rate_hz_target": loop.config.rate_hz,
+        "rate_hz": round(summary["ticks"] / seconds, 3),
+        **summary,
+        **recorded,
     }
