@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -42,7 +43,8 @@ class Seen:
 
 def _live(clip: Path, seconds: float, loop_video: bool = False) -> list[TickRecord]:
     seen = Seen()
-    options = LoopOptions.of(f"video:{clip}", loop_video=loop_video)
+    extra: dict[str, Any] = {"loop_video": True} if loop_video else {}
+    options = LoopOptions.of(f"video:{clip}", **extra)
     built = build(options, realtime=True, observers=(seen,))
     try:
         built.loop.run(max_ticks=round(seconds * built.loop.config.rate_hz))

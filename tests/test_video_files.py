@@ -133,13 +133,13 @@ def test_track_on_a_rotated_phone_clip_gives_upright_landmarks(
     cmd = [sys.executable, "-m", "dsteleop.app.cli.main", "track", str(video), "--out", str(out)]
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
+    records = [json.loads(ln) for ln in out.read_text().splitlines()]
+    assert _image_up_fraction(records) > 0.9
     # No native library's own lines on stderr (MediaPipe's W0000, TFLite's INFO, FFmpeg's).
     assert not any(
         ln.startswith(("W0000", "INFO: Created", "WARNING: All log", "["))
         for ln in done.stderr.splitlines()
     ), done.stderr
-    records = [json.loads(ln) for ln in out.read_text().splitlines()]
-    assert _image_up_fraction(records) > 0.9
     sideways = tmp_path / "s.jsonl"
     assert main(["track", str(video), "--out", str(sideways), "--rotate", "0"]) == 0
     assert _image_up_fraction([json.loads(ln) for ln in sideways.read_text().splitlines()]) < 0.1
