@@ -9,6 +9,13 @@ synthetic operator doing the pick-and-place task), and a line says so. The view 
 anyone who can reach the port can steer the robot. A port in use is one clear error naming
 the port (exit code 2), checked before the camera is opened.
 
+Trials follow one another: the task resets `--reset-after` seconds (default 4) after each
+outcome, and a trial without one after `--time-limit` seconds fails (`timeout`); each is an
+episode of the recording. `--record DIR` records from the first tick into a new folder
+`DIR/<date>-<time>-<mode>-<utensil>/`; the page's Recording Start writes there too (under
+`./sessions/` without `--record`). A video source plays from the loop's first tick and the
+page says when it ended (`--loop-video` plays it again).
+
 The loop runs in the main thread at its fixed rate; the viewer has its own thread and reads
 the loop's tick records through a one-slot subscription. Ctrl-C (SIGINT) and SIGTERM stop the
 loop at the end of its tick; then the view is stopped, the recording closed (complete) and
