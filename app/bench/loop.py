@@ -7,10 +7,17 @@ threads, DS arbitration and the PyBullet robot in the loop. Reports start-time j
 (p50/p99/max), tick duration, overruns, and frame-to-command latency (capture of a frame to
 the robot command computed from it; p50/p95/p99). Falls back to the demo source when the
 test-data folder is not given (`--data DIR`, docs/test-data.md).
+
+`loop_rerun` is the same run, measured right after, with a Rerun logger writing the run to a
+file as `--rerun FILE.rrd` does (the scene's poses exported every tick, the logger's thread
+sending columns twice a second): the cost of the recording, on the same machine in the same
+minute. It reports what the logger logged and dropped, and the file's size.
 """
 
 from __future__ import annotations
 
+import socket
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +26,7 @@ from dsteleop.app.inputs.tracked import TrackedHandInput
 from dsteleop.app.loop import LoopConfig, TeleopLoop
 from dsteleop.app.loop.timing import raise_priority
 from dsteleop.app.plants.kitchen import KitchenPlant
+from dsteleop.app.rrd.target import RerunTarget
 from dsteleop.arbitration import Mode
 from dsteleop.tracking.mapping import WorkspaceMapping
 from dsteleop.tracking.pipeline import HandTracker, TrackingStream
@@ -37,21 +45,59 @@ def shared_video() -> Path | None:
 def run(quick: bool = False) -> dict[str, Any]:
     seconds = 10.0 if quick else 60.0
     raise_priority()  # as `dsteleop serve` does
+    out = {"loop": _run(seconds, None)}
+    with tempfile.TemporaryDirectory() as tmp:
+        rrd = Path(tmp) / "bench.rrd"
+        out["loop_rerun"] = _run(seconds, RerunTarget(rrd))
+    # Streaming to a viewer that is not there (nothing listens on the port): the logger's
+    # data goes nowhere; the loop must not notice.
+    out["loop_rerun_absent_viewer"] = _run(seconds, RerunTarget(connect=_unused_address()))
+    return out
+
+
+def _unused_address() -> str:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    return f"rerun+http://127.0.0.1:{port}/proxy"
+
+
+def _run(seconds: float, rerun: RerunTarget | None) -> dict[str, Any]:
+    """One measured run (`_measure`), with a Rerun logger when `rerun` is given."""
     video = shared_video()
-    plant = KitchenPlant("spoon", seed=0)
-    if video is not None:
-        stream = TrackingStream(VideoFileSource(video, realtime=True, loop=True), HandTracker())
-        hand = TrackedHandInput.from_stream(stream.start(), WorkspaceMapping())
-        source = f"video {video.name} (looping, MediaPipe full model)"
-    else:
+    logger: Any = None
+    if video is None:
         from dsteleop.app.cli.compose import build
         from dsteleop.app.cli.options import LoopOptions
 
-        plant.close()
-        built = build(LoopOptions.of("demo", LoopConfig(mode=Mode.DS)), realtime=True)
-        return _measure(built.loop, seconds, "demo (synthetic operator)")
-    loop = TeleopLoop(LoopConfig(mode=Mode.DS), hand, plant)
-    return _measure(loop, seconds, source)
+        built = build(LoopOptions.of("demo", LoopConfig(mode=Mode.DS), rerun=rerun), realtime=True)
+        result = _measure(built.loop, seconds, "demo (synthetic operator)")
+        if built.rerun is not None:
+            result["rerun"] = _rerun_stats(built.rerun, rerun)
+        return result
+    plant = KitchenPlant("spoon", seed=0, export_scene=rerun is not None)
+    stream = TrackingStream(VideoFileSource(video, realtime=True, loop=True), HandTracker())
+    hand = TrackedHandInput.from_stream(stream.start(), WorkspaceMapping())
+    source = f"video {video.name} (looping, MediaPipe full model)"
+    if rerun is not None:
+        from dsteleop.app.rrd.live import RerunLogger
+
+        plant.reset()  # the scene and the goals exist once the task is set up
+        logger = RerunLogger(rerun, "bench", plant.scene(), plant.describe())
+    loop = TeleopLoop(
+        LoopConfig(mode=Mode.DS), hand, plant, observers=() if logger is None else (logger,)
+    )
+    result = _measure(loop, seconds, source)
+    if logger is not None:
+        result["rerun"] = _rerun_stats(logger, rerun)
+    return result
+
+
+def _rerun_stats(logger: Any, target: RerunTarget | None) -> dict[str, Any]:
+    stats = logger.close()
+    path = None if target is None else target.path
+    size = path.stat().st_size if path is not None and path.is_file() else 0
+    return {**stats, "file_mb": round(size / 1e6, 2), "connect": target and target.connect}
 
 
 def _measure(
@@ -67,11 +113,9 @@ def _measure(
     finally:
         loop.close()
     return {
-        "loop": {
-            "source": source,
-            "seconds": seconds,
-            "rate_hz_target": loop.config.rate_hz,
-            "rate_hz": round(summary["ticks"] / seconds, 3),
-            **summary,
-        }
+        "source": source,
+        "seconds": seconds,
+        "rate_hz_target": loop.config.rate_hz,
+        "rate_hz": round(summary["ticks"] / seconds, 3),
+        **summary,
     }

@@ -16,6 +16,7 @@ built loop afterwards.
 from __future__ import annotations
 
 import logging
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -38,11 +39,27 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class Built:
-    """A ready loop and what the caller may need beside it."""
+    """A ready loop and what the caller may need beside it.
+
+    Attributes:
+        loop: the loop.
+        demo: the demo person, when the source is the demo.
+        source: the source that was opened.
+        rerun: the Rerun logger observing the loop, when asked for (`--rerun`).
+    """
 
     loop: TeleopLoop
     demo: DemoOperator | None
     source: SourceSpec
+    rerun: Any = None
+
+    def close(self) -> None:
+        """Close the loop (the recording, the source, the robot), then the Rerun logger."""
+        try:
+            self.loop.close()
+        finally:
+            if self.rerun is not None:
+                self.rerun.close()
 
 
 def resolve_source(spec: SourceSpec) -> SourceSpec:
@@ -80,8 +97,12 @@ def build(
     spec = resolve_source(options.source)
     mapping = mapping or MappingConfig()
     plant = KitchenPlant(
-        options.utensil, options.seed, options.goal_noise_m, export_scene=export_scene
+        options.utensil,
+        options.seed,
+        options.goal_noise_m,
+        export_scene=export_scene or options.rerun is not None,
     )
+    rerun: Any = None
     try:
         start = plant.reset()
         demo: DemoOperator | None = None
@@ -110,6 +131,17 @@ def build(
                 source, HandTracker(), WorkspaceMapping(mapping), delay, t0_s=0.0
             )
         meta: dict[str, Any] = {"source_kind": spec.kind, "seed": options.seed}
+        if options.rerun is not None:
+            from dsteleop.app.rrd.live import RerunLogger
+
+            name = options.record.name if options.record is not None else None
+            rerun = RerunLogger(
+                options.rerun,
+                name or time.strftime("live-%Y%m%d-%H%M%S"),
+                scene=plant.scene(),
+                plant_meta=plant.describe(),
+            )
+            observers = (*observers, rerun)
         loop = TeleopLoop(
             options.loop,
             hand,
@@ -123,5 +155,7 @@ def build(
         )
     except BaseException:
         plant.close()
+        if rerun is not None:
+            rerun.close()
         raise
-    return Built(loop, demo, spec)
+    return Built(loop, demo, spec, rerun)

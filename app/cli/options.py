@@ -6,7 +6,8 @@
                          {"arbitration": {...}, "loop": {...}} (what `dsteleop tune` writes
                          as best.json); --param applies on top of it
     loop options         --source, --mode, --utensil, --seed, --goal-noise, --input-delay,
-                         --rate, --lost-policy, --record, --record-video: run and serve
+                         --rate, --lost-policy, --record, --record-video, --rerun,
+                         --rerun-connect: run and serve
 
 Values are checked here, so a bad one is one line naming it (exit 2) before anything opens.
 """
@@ -20,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from dsteleop.app.loop import LoopConfig, LostPolicy
+from dsteleop.app.rrd.target import DEFAULT_ADDR, RerunTarget
 from dsteleop.arbitration import ArbitrationConfig, Mode
 from dsteleop.errors import ConfigError, InputError
 from dsteleop.tracking.sources import SOURCE_GRAMMAR, SourceSpec, parse_source
@@ -122,6 +124,21 @@ def add_loop_options(parser: argparse.ArgumentParser, default_source: str) -> No
         action="store_true",
         help="also record the camera frames (for replay --retrack)",
     )
+    parser.add_argument(
+        "--rerun",
+        type=Path,
+        default=None,
+        metavar="FILE.rrd",
+        help="write a Rerun recording while running (open with: rerun FILE.rrd)",
+    )
+    parser.add_argument(
+        "--rerun-connect",
+        nargs="?",
+        const=DEFAULT_ADDR,
+        default=None,
+        metavar="ADDR",
+        help=f"stream to a Rerun viewer you started (default {DEFAULT_ADDR})",
+    )
     add_config_options(parser)
 
 
@@ -137,6 +154,7 @@ class LoopOptions:
         goal_noise_m: goal position noise [m] (None: the task's default).
         record: the session folder (run) or root (serve), or None.
         record_video: record the camera frames too.
+        rerun: where a Rerun recording of the run goes, or None (docs/recordings.md).
     """
 
     source: SourceSpec
@@ -146,6 +164,7 @@ class LoopOptions:
     goal_noise_m: float | None = None
     record: Path | None = None
     record_video: bool = False
+    rerun: RerunTarget | None = None
 
     @classmethod
     def of(cls, source: str = "demo", loop: LoopConfig | None = None, **kw: Any) -> LoopOptions:
@@ -178,4 +197,9 @@ def loop_options(args: argparse.Namespace) -> LoopOptions:
         goal_noise_m=args.goal_noise,
         record=args.record,
         record_video=bool(args.record_video),
+        rerun=(
+            None
+            if args.rerun is None and args.rerun_connect is None
+            else RerunTarget(args.rerun, args.rerun_connect)
+        ),
     )

@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
             else:
                 loop.run_headless(max_ticks)
         finally:
-            loop.close()
+            built.close()
     wall = time.perf_counter() - t0
     summary: dict[str, Any] = {
         "outcome": loop.outcome or "none",
@@ -96,6 +96,14 @@ def run(args: argparse.Namespace) -> int:
         "session": None if opts.record is None else str(opts.record),
         "timing": loop.rate.summary(),
     }
+    if built.rerun is not None:
+        r = built.rerun
+        summary["rerun"] = {
+            "file": None if r.target.path is None else str(r.target.path),
+            "connect": r.target.connect,
+            "ticks_logged": r.logged,
+            "ticks_dropped": r.dropped,
+        }
     json.dump(summary, sys.stdout)
     sys.stdout.write("\n")
     return 0

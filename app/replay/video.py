@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 from dsteleop.app.inputs.tracked import replayed_samples
 from dsteleop.app.loop import LoopConfig
-from dsteleop.app.replay.core import run_headless, session_config, simulated_plant
+from dsteleop.app.replay.core import RunSink, run_headless, session_config, simulated_plant
 from dsteleop.app.session.reader import Session
 from dsteleop.app.session.trace import Trace
 from dsteleop.arbitration import ArbitrationConfig, Mode
@@ -46,10 +46,13 @@ def track_video(path: Path, t_capture_s: Sequence[float] | None = None) -> list[
 
 
 def replay_video(
-    path: Path, modes: Sequence[Mode], arbitration: ArbitrationConfig | None = None
+    path: Path,
+    modes: Sequence[Mode],
+    arbitration: ArbitrationConfig | None = None,
+    sink_for: Callable[[Mode], RunSink] | None = None,
 ) -> tuple[list[Trace], float]:
     """Track a video and run it as a session in each mode (with `arbitration`, default the
-    defaults); returns (traces, duration [s])."""
+    defaults); returns (traces, duration [s]). `sink_for(mode)` gets each run's records."""
     samples = track_video(path)
     if not samples:
         raise InputError(f"{path}: no frames")
@@ -60,14 +63,19 @@ def replay_video(
     traces = []
     for mode in modes:
         hand = replayed_samples(samples, WorkspaceMapping(MappingConfig()), "tracked video")
+        sink = None if sink_for is None else sink_for(mode)
+        plant = simulated_plant({}, export_scene=sink is not None)
         traces.append(
-            run_headless(path.name, hand, ticks, cfg0.replace(mode=mode), simulated_plant({}))
+            run_headless(path.name, hand, ticks, cfg0.replace(mode=mode), plant, sink=sink)
         )
     return traces, duration
 
 
-def replay_retracked(session: Session, modes: Sequence[Mode]) -> list[Trace]:
-    """Re-run tracking on the session's video, then the loop in each mode."""
+def replay_retracked(
+    session: Session, modes: Sequence[Mode], sink_for: Callable[[Mode], RunSink] | None = None
+) -> list[Trace]:
+    """Re-run tracking on the session's video, then the loop in each mode (`sink_for(mode)`
+    gets each run's records)."""
     video, frames = session.video, session.frames
     if video is None or frames is None:
         raise InputError(f"{session.folder}: no video.mp4 + frames.jsonl to re-track")
@@ -79,17 +87,21 @@ def replay_retracked(session: Session, modes: Sequence[Mode]) -> list[Trace]:
     samples = track_video(video, times)
     mapping = MappingConfig(**_mapping_kwargs(session.meta.get("mapping", {})))
     ticks = [r.t_s for r in session.records]
-    return [
-        run_headless(
-            session.name,
-            replayed_samples(samples, WorkspaceMapping(mapping), "re-tracked video"),
-            ticks,
-            session_config(session, m),
-            simulated_plant(session.meta.get("plant", {})),
-            session.history,
+    traces = []
+    for m in modes:
+        sink = None if sink_for is None else sink_for(m)
+        traces.append(
+            run_headless(
+                session.name,
+                replayed_samples(samples, WorkspaceMapping(mapping), "re-tracked video"),
+                ticks,
+                session_config(session, m),
+                simulated_plant(session.meta.get("plant", {}), export_scene=sink is not None),
+                session.history,
+                sink,
+            )
         )
-        for m in modes
-    ]
+    return traces
 
 
 def _mapping_kwargs(d: dict[str, Any]) -> dict[str, Any]:
