@@ -265,7 +265,7 @@ def blueprint(roots: Sequence[str], camera: bool = False) -> Any:
             "/goal_true/**",
         ],
     )
-    left = [scene]
+    left: list[Any] = [scene]
     if camera:
         left.append(rrb.Spatial2DView(name="camera", origin="/camera"))
     plots = [
