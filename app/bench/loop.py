@@ -12,10 +12,17 @@ A second run, `loop_recording_video`, measures the same while the session is rec
 `run --record DIR --record-video` does: every tick to `ticks.jsonl` (recorder thread) and
 every camera frame to the crash-safe `video.mp4` (H.264, its own writer thread), into a
 temporary folder that is removed afterwards.
+
+`loop_rerun` measures it with a Rerun logger writing the run to a file, as `--rerun
+FILE.rrd` does (the scene's poses exported every tick, the logger's thread sending columns
+twice a second, camera frames at up to 10 Hz), and `loop_rerun_absent_viewer` with a logger
+streaming to a viewer that is not there (`--rerun-connect` to a port nothing listens on):
+each reports what the logger logged and dropped (and the file's size).
 """
 
 from __future__ import annotations
 
+import socket
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -25,6 +32,7 @@ from dsteleop.app.inputs.tracked import TrackedHandInput
 from dsteleop.app.loop import LoopConfig, TeleopLoop
 from dsteleop.app.loop.timing import raise_priority
 from dsteleop.app.plants.kitchen import KitchenPlant
+from dsteleop.app.rrd.target import RerunTarget
 from dsteleop.app.session.video import FrameRecorder
 from dsteleop.arbitration import Mode
 from dsteleop.tracking.mapping import WorkspaceMapping
@@ -47,26 +55,67 @@ def run(quick: bool = False) -> dict[str, Any]:
     out = {"loop": _one(seconds, record=False)}
     with tempfile.TemporaryDirectory(prefix="dsteleop-bench-") as tmp:
         out["loop_recording_video"] = _one(seconds, record=True, folder=Path(tmp) / "session")
+        out["loop_rerun"] = _one(seconds, rerun=RerunTarget(Path(tmp) / "bench.rrd"))
+    out["loop_rerun_absent_viewer"] = _one(seconds, rerun=RerunTarget(connect=_unused_address()))
     return out
 
 
-def _one(seconds: float, record: bool, folder: Path | None = None) -> dict[str, Any]:
-    """One measured run (module docstring), recording into `folder` when `record`."""
+def _unused_address() -> str:
+    """A viewer address on a local port nothing listens on."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    return f"rerun+http://127.0.0.1:{port}/proxy"
+
+
+def _one(
+    seconds: float,
+    record: bool = False,
+    folder: Path | None = None,
+    rerun: RerunTarget | None = None,
+) -> dict[str, Any]:
+    """One measured run (module docstring), recording into `folder` when `record`, with a
+    Rerun logger when `rerun` is given."""
     video = shared_video()
     if video is None:
         from dsteleop.app.cli.compose import build
         from dsteleop.app.cli.options import LoopOptions
 
-        built = build(LoopOptions.of("demo", LoopConfig(mode=Mode.DS)), realtime=True)
-        return _measure(built.loop, seconds, "demo (synthetic operator, no pixels)", folder)
-    plant = KitchenPlant("spoon", seed=0)
+        built = build(LoopOptions.of("demo", LoopConfig(mode=Mode.DS), rerun=rerun), realtime=True)
+        result = _measure(built.loop, seconds, "demo (synthetic operator, no pixels)", folder)
+        if built.rerun is not None:
+            result["rerun"] = _rerun_stats(built.rerun, rerun)
+        return result
+    plant = KitchenPlant("spoon", seed=0, export_scene=rerun is not None)
     source: FrameSource = VideoFileSource(video, realtime=True, loop=True)
     frames = FrameRecorder(source) if record else None
     stream = TrackingStream(frames or source, HandTracker())
     hand = TrackedHandInput.from_stream(stream.open(), WorkspaceMapping())
-    loop = TeleopLoop(LoopConfig(mode=Mode.DS), hand, plant, frame_recorder=frames)
+    logger: Any = None
+    if rerun is not None:
+        from dsteleop.app.rrd.live import RerunLogger
+
+        plant.reset()  # the scene and the goals exist once the task is set up
+        logger = RerunLogger(rerun, "bench", plant.scene(), plant.describe())
+    loop = TeleopLoop(
+        LoopConfig(mode=Mode.DS),
+        hand,
+        plant,
+        frame_recorder=frames,
+        observers=() if logger is None else (logger,),
+    )
     what = f"video {video.name} (looping, MediaPipe full model)"
-    return _measure(loop, seconds, what, folder, frames)
+    result = _measure(loop, seconds, what, folder, frames)
+    if logger is not None:
+        result["rerun"] = _rerun_stats(logger, rerun)
+    return result
+
+
+def _rerun_stats(logger: Any, target: RerunTarget | None) -> dict[str, Any]:
+    stats = logger.close()
+    path = None if target is None else target.path
+    size = path.stat().st_size if path is not None and path.is_file() else 0
+    return {**stats, "file_mb": round(size / 1e6, 2), "connect": target and target.connect}
 
 
 def _measure(

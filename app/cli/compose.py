@@ -18,6 +18,7 @@ built loop afterwards.
 from __future__ import annotations
 
 import logging
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -54,12 +55,22 @@ class Built:
         source: the resolved source.
         video: the video file behind the hand, when the source is one (its `partial`,
             `end_note()` once it ended).
+        rerun: the Rerun logger observing the loop, when asked for (`--rerun`).
     """
 
     loop: TeleopLoop
     demo: DemoOperator | None
     source: SourceSpec
     video: VideoFileSource | None = None
+    rerun: Any = None
+
+    def close(self) -> None:
+        """Close the loop (the recording, the source, the robot), then the Rerun logger."""
+        try:
+            self.loop.close()
+        finally:
+            if self.rerun is not None:
+                self.rerun.close()
 
 
 def resolve_source(spec: SourceSpec) -> SourceSpec:
@@ -100,9 +111,10 @@ def build(
         options.utensil,
         options.seed,
         options.goal_noise_m,
-        export_scene=export_scene,
+        export_scene=export_scene or options.rerun is not None,
         time_limit_s=options.time_limit_s,
     )
+    rerun: Any = None
     try:
         start = plant.reset()
         demo: DemoOperator | None = None
@@ -138,6 +150,17 @@ def build(
                 source, HandTracker(), WorkspaceMapping(mapping), delay, t0_s=0.0
             )
         meta: dict[str, Any] = {"source_kind": spec.kind, "seed": options.seed}
+        if options.rerun is not None:
+            from dsteleop.app.rrd.live import RerunLogger
+
+            name = options.record.name if options.record is not None else None
+            rerun = RerunLogger(
+                options.rerun,
+                name or time.strftime("live-%Y%m%d-%H%M%S"),
+                scene=plant.scene(),
+                plant_meta=plant.describe(),
+            )
+            observers = (*observers, rerun)
         loop = TeleopLoop(
             options.loop,
             hand,
@@ -151,5 +174,7 @@ def build(
         )
     except BaseException:
         plant.close()
+        if rerun is not None:
+            rerun.close()
         raise
-    return Built(loop, demo, spec, video)
+    return Built(loop, demo, spec, video, rerun)

@@ -6,7 +6,8 @@
                          {"arbitration": {...}, "loop": {...}} (what `dsteleop tune` writes
                          as best.json); --param applies on top of it
     loop options         --source, --mode, --utensil, --seed, --goal-noise, --input-delay,
-                         --rate, --lost-policy, --record, --record-video: run and serve
+                         --rate, --lost-policy, --record, --record-video, --rerun,
+                         --rerun-connect: run and serve
 
 Values are checked here, so a bad one is one line naming it (exit 2) before anything opens.
 """
@@ -22,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from dsteleop.app.loop import LoopConfig, LostPolicy
+from dsteleop.app.rrd.target import DEFAULT_ADDR, RerunTarget
 from dsteleop.arbitration import ArbitrationConfig, Mode
 from dsteleop.errors import ConfigError, InputError
 from dsteleop.tracking.sources import (
@@ -193,6 +195,21 @@ def add_loop_options(
         action="store_true",
         help="play a video source again from the start when it ends",
     )
+    parser.add_argument(
+        "--rerun",
+        type=Path,
+        default=None,
+        metavar="FILE.rrd",
+        help="write a Rerun recording while running (open with: rerun FILE.rrd)",
+    )
+    parser.add_argument(
+        "--rerun-connect",
+        nargs="?",
+        const=DEFAULT_ADDR,
+        default=None,
+        metavar="ADDR",
+        help=f"stream to a Rerun viewer you started (default {DEFAULT_ADDR})",
+    )
     add_video_options(parser)
     add_config_options(parser)
 
@@ -214,6 +231,7 @@ class LoopOptions:
         allow_partial: accept a video that ends before the frames it declares.
         time_limit_s: a trial without an outcome after this long fails [s] (None: the
             task's default, 120 s).
+        rerun: where a Rerun recording of the run goes, or None (docs/recordings.md).
     """
 
     source: SourceSpec
@@ -227,6 +245,7 @@ class LoopOptions:
     rotate: int | None = None
     allow_partial: bool = False
     time_limit_s: float | None = None
+    rerun: RerunTarget | None = None
 
     @classmethod
     def of(cls, source: str = "demo", loop: LoopConfig | None = None, **kw: Any) -> LoopOptions:
@@ -271,4 +290,9 @@ def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOp
         rotate=check_rotation(args.rotate),
         allow_partial=bool(args.allow_partial),
         time_limit_s=limit,
+        rerun=(
+            None
+            if args.rerun is None and args.rerun_connect is None
+            else RerunTarget(args.rerun, args.rerun_connect)
+        ),
     )

@@ -11,6 +11,8 @@ aggregated over sessions with the paper's tests) and PNG plots; one JSON line on
                          have computed along the same robot path
     --as-recorded        the sessions' own ticks, as they happened
     --retrack            re-run tracking on each session's video first
+    --rerun FILE.rrd     also write a Rerun recording: one per episode (or video), every
+                         replayed mode on one timeline (docs/recordings.md)
 """
 
 from __future__ import annotations
@@ -20,7 +22,9 @@ import dataclasses
 import json
 import logging
 import os
+import shutil
 import sys
+import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -54,6 +58,7 @@ class ReplayCommand:
         arbitration: hyper-parameters for the replays (None: each session's own).
         rotate: turn the frames of video inputs [deg clockwise] (None: their own rotation).
         allow_partial: accept videos that end before the frames they declare.
+        rerun: write a Rerun recording of every run to this .rrd file, or None.
     """
 
     inputs: tuple[Path, ...]
@@ -67,6 +72,7 @@ class ReplayCommand:
     arbitration: ArbitrationConfig | None
     rotate: int | None = None
     allow_partial: bool = False
+    rerun: Path | None = None
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -98,6 +104,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--workers", type=int, default=min(2, os.cpu_count() or 1), help="parallel processes"
     )
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    parser.add_argument(
+        "--rerun",
+        type=Path,
+        default=None,
+        metavar="FILE.rrd",
+        help="also write a Rerun recording of every episode and mode (open with: rerun FILE.rrd)",
+    )
     add_video_options(parser)
     add_config_options(parser)
 
@@ -133,6 +146,13 @@ def command(args: argparse.Namespace) -> ReplayCommand:
     arb: ArbitrationConfig | None = None
     if args.config is not None or args.param:
         arb, _ = arbitration_config(args)
+    rerun: Path | None = None
+    if args.rerun is not None:
+        rerun = Path(args.rerun)
+        if rerun.suffix != ".rrd":
+            raise ConfigError(f"--rerun must name a .rrd file, got {rerun}")
+        if not rerun.parent.is_dir():
+            raise ConfigError(f"--rerun: no such folder: {rerun.parent}")
     return ReplayCommand(
         inputs=_expand(list(args.inputs)),
         modes=modes,
@@ -145,12 +165,50 @@ def command(args: argparse.Namespace) -> ReplayCommand:
         arbitration=arb,
         rotate=check_rotation(args.rotate),
         allow_partial=bool(args.allow_partial),
+        rerun=rerun,
     )
 
 
-Unit = tuple[str, "int | None", tuple[str, ...], "ReplayCommand"]
+Unit = tuple[str, "int | None", tuple[str, ...], "ReplayCommand", "str | None"]
 """(input path, episode index (None: a video, or every episode of a re-tracked session),
-modes, the command)."""
+modes, the command, the folder of Rerun part files (None: no recording))."""
+
+
+def _rerun_sinks(parts: Path, modes: tuple[str, ...], plant_meta: Any, camera: Any) -> Any:
+    """`sink_for(name, mode)`: each run's part file (recording id = the run's name: an
+    episode, or a video); the first mode's also holds what the modes share (the true goals,
+    the camera over the run's time, the recording's layout)."""
+    from dsteleop.app.rrd.replay import write_part
+
+    def sink_for(name: str, mode: Mode) -> Any:
+        shared = mode.value == modes[0]
+        part = parts / f"{name.replace('/', '~')}-{mode.value}.rrd"
+
+        def sink(records: Any, scene: Any) -> None:
+            write_part(
+                part,
+                name,
+                mode.value,
+                records,
+                scene,
+                plant_meta if shared else None,
+                camera if shared else None,
+                modes if shared else None,
+            )
+
+        return sink
+
+    return sink_for
+
+
+def _camera(session: Any) -> Any:
+    """The session's camera for a recording: its video and the frames' capture times."""
+    from dsteleop.app.replay.video import frame_times
+    from dsteleop.app.rrd.replay import Camera
+
+    if session.video is None or session.frames is None:
+        return None
+    return Camera(session.video, tuple(frame_times(session.frames)))
 
 
 def _work(unit: Unit) -> list[Any]:
@@ -159,34 +217,71 @@ def _work(unit: Unit) -> list[Any]:
     from dsteleop.app.replay import core
     from dsteleop.app.session.reader import read_session
 
-    path_s, index, mode_names, cmd = unit
+    path_s, index, mode_names, cmd, parts_s = unit
     path = Path(path_s)
+    parts = None if parts_s is None else Path(parts_s)
     modes = [Mode.parse(m) for m in mode_names]
+    # What the modes of a run share (camera, true goals, layout) goes with the first mode.
+    all_modes = tuple(m.value for m in cmd.modes)
     if path.suffix.lower() in VIDEO_SUFFIXES:
         from dsteleop.app.replay.video import replay_video
+        from dsteleop.app.rrd.replay import Camera
 
+        sinks = None
+        if parts is not None:
+            sinks = _rerun_sinks(parts, all_modes, None, Camera(path, rotate=cmd.rotate))
         traces, recorded_s = replay_video(
-            path, modes, cmd.arbitration, rotate=cmd.rotate, allow_partial=cmd.allow_partial
+            path,
+            modes,
+            cmd.arbitration,
+            rotate=cmd.rotate,
+            allow_partial=cmd.allow_partial,
+            sink_for=sinks,
         )
         return [core.Run(path.name, path.name, None, recorded_s, tr) for tr in traces]
     session = read_session(path)
     if cmd.arbitration is not None:
         loop = {**session.meta.get("loop", {}), "arbitration": cmd.arbitration.to_dict()}
         session = dataclasses.replace(session, meta={**session.meta, "loop": loop})
+    sink_for = None
+    if parts is not None:
+        sink_for = _rerun_sinks(parts, all_modes, session.meta.get("plant", {}), _camera(session))
     if cmd.retrack:
         from dsteleop.app.replay.video import replay_retracked
 
         return [
             core.Run(session.of_episode(ep).name, session.name, ep, tr.recorded_s, tr)
-            for ep, tr in replay_retracked(session, modes, cmd.allow_partial)
+            for ep, tr in replay_retracked(session, modes, cmd.allow_partial, sink_for)
         ]
     assert index is not None
     episode = session.episodes[index]
     view = session.of_episode(episode)
     if cmd.as_recorded:
         traces = [core.as_recorded(view)]
+        if parts is not None:
+            from dsteleop.app.rrd.replay import write_part
+
+            own = view.mode.value
+            write_part(
+                parts / f"{view.name.replace('/', '~')}-{own}.rrd",
+                view.name,
+                own,
+                view.records,
+                None,
+                view.meta.get("plant", {}),
+                _camera(session),
+                (own,),
+            )
     else:
-        traces = [core.replay_session(view, m, robot=cmd.robot) for m in modes]
+        traces = [
+            core.replay_session(
+                view,
+                m,
+                robot=cmd.robot,
+                sink=None if sink_for is None else sink_for(view.name, m),
+            )
+            for m in modes
+        ]
     return [core.Run(view.name, session.name, episode, tr.recorded_s, tr) for tr in traces]
 
 
@@ -206,27 +301,39 @@ def run(args: argparse.Namespace) -> int:
     # unit (the modes run in parallel); a video or a re-tracked session is one unit (tracked
     # once, then every episode run in every mode).
     names = tuple(m.value for m in cmd.modes)
+    parts: Path | None = None
+    if cmd.rerun is not None:
+        parts = Path(tempfile.mkdtemp(prefix=".rerun-parts-", dir=cmd.rerun.parent))
+    parts_s = None if parts is None else str(parts)
     units: list[Unit] = []
     for p in cmd.inputs:
         if p.suffix.lower() in VIDEO_SUFFIXES or cmd.retrack:
-            units.append((str(p), None, names, cmd))
+            units.append((str(p), None, names, cmd, parts_s))
             continue
         for e in range(episodes[p]):
             for group in [names] if cmd.as_recorded else [(m,) for m in names]:
-                units.append((str(p), e, group, cmd))
+                units.append((str(p), e, group, cmd, parts_s))
     runs: list[Any] = []
-    with Progress(len(units), sys.stderr, sys.stderr.isatty(), "replay", "runs") as bar:
-        if cmd.workers == 1 or len(units) == 1:
-            for u in units:
-                runs.extend(_work(u))
-                bar.advance()
-        else:
-            import dsteleop.app.plants.kitchen  # noqa: F401  (loaded once; forked workers share it)
-
-            with ProcessPoolExecutor(max_workers=cmd.workers) as pool:
-                for res in pool.map(_work, units):
-                    runs.extend(res)
+    try:
+        with Progress(len(units), sys.stderr, sys.stderr.isatty(), "replay", "runs") as bar:
+            if cmd.workers == 1 or len(units) == 1:
+                for u in units:
+                    runs.extend(_work(u))
                     bar.advance()
+            else:
+                import dsteleop.app.plants.kitchen  # noqa: F401  (loaded once; workers share it)
+
+                with ProcessPoolExecutor(max_workers=cmd.workers) as pool:
+                    for res in pool.map(_work, units):
+                        runs.extend(res)
+                        bar.advance()
+        if parts is not None and cmd.rerun is not None:
+            from dsteleop.app.rrd.files import merge
+
+            merge(sorted(parts.glob("*.rrd")), cmd.rerun)
+    finally:
+        if parts is not None:
+            shutil.rmtree(parts, ignore_errors=True)
     wall = time.perf_counter() - t0
     entries = core.episode_summaries(runs)
     all_traces = [r.trace for r in runs]
@@ -262,6 +369,7 @@ def run(args: argparse.Namespace) -> int:
             "inputs": len(cmd.inputs),
             "episodes": len(entries),
             "counted": sum(bool(e["counted"]) for e in entries),
+            "rerun": None if cmd.rerun is None else str(cmd.rerun),
         },
         sys.stdout,
     )

@@ -91,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
             else:
                 loop.run_headless(max_ticks)
         finally:
-            loop.close()
+            built.close()
     wall = time.perf_counter() - t0
     if built.video is not None:
         kept = "no session was recorded" if opts.record is None else f"the session is {opts.record}"
@@ -117,6 +117,14 @@ def run(args: argparse.Namespace) -> int:
         "session": None if opts.record is None else str(opts.record),
         "timing": loop.rate.summary(),
     }
+    if built.rerun is not None:
+        r = built.rerun
+        summary["rerun"] = {
+            "file": None if r.target.path is None else str(r.target.path),
+            "connect": r.target.connect,
+            "ticks_logged": r.logged,
+            "ticks_dropped": r.dropped,
+        }
     json.dump(summary, sys.stdout)
     sys.stdout.write("\n")
     return 0

@@ -143,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
             if viewer is not None:
                 viewer.close()
             recording = loop.recording
-            loop.close()  # closes the recording (complete), releases the camera and robot
+            built.close()  # the recording (complete), the camera, the robot, the Rerun log
     summary: dict[str, Any] = {
         "source": str(spec),
         "stopped_by": stopper.received or "end of run",

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, Literal, NamedTuple
 
 import numpy as np
@@ -43,6 +43,7 @@ from dsteleop.app.session.reader import Session
 from dsteleop.app.session.schema import TickRecord
 from dsteleop.app.session.trace import Trace
 from dsteleop.arbitration import Mode, OperatorHistory, metrics
+from dsteleop.robot.scene import SceneGeometry
 
 Array = NDArray[np.float64]
 Robot = Literal["simulated", "recorded"]
@@ -54,6 +55,12 @@ def session_config(session: Session, mode: Mode | None) -> LoopConfig:
     return cfg if mode is None else cfg.replace(mode=mode)
 
 
+#: Receives a finished run's records and the plant's scene description (e.g. a Rerun writer).
+RunSink = Callable[[Sequence[TickRecord], SceneGeometry | None], None]
+#: The sink of a run, by the run's name (a session's episode, or a video) and mode.
+SinkFor = Callable[[str, Mode], RunSink]
+
+
 def run_headless(
     name: str,
     hand: HandInput,
@@ -61,8 +68,10 @@ def run_headless(
     cfg: LoopConfig,
     plant: Plant,
     history: OperatorHistory | None = None,
+    sink: RunSink | None = None,
 ) -> Trace:
-    """Run a fresh loop over `tick_times` on a manual clock, as fast as possible; its trace."""
+    """Run a fresh loop over `tick_times` on a manual clock, as fast as possible; its trace.
+    `sink` gets the run's records before the plant closes."""
     clock = ManualClock(tick_times[0] if tick_times else 0.0)
     loop = TeleopLoop(cfg, hand, plant, clock=clock, history=history or OperatorHistory())
     records: list[TickRecord] = []
@@ -70,20 +79,25 @@ def run_headless(
         for t in tick_times:
             clock.sleep_until(t)
             records.append(loop.tick(t))
+        if sink is not None:
+            sink(records, plant.scene())
     finally:
         loop.close()
     v_max = cfg.arbitration.v_max(len(plant.finger_names))
     return Trace.of(name, cfg.mode, records, v_max)
 
 
-def simulated_plant(plant_meta: dict[str, Any]) -> Plant:
-    """A fresh PyBullet kitchen built from a session's plant metadata."""
+def simulated_plant(plant_meta: dict[str, Any], export_scene: bool = False) -> Plant:
+    """A fresh PyBullet kitchen built from a session's plant metadata (`export_scene`: with
+    per-tick scene poses, for a viewer or a recording)."""
     from dsteleop.app.plants.kitchen import plant_from_meta
 
-    return plant_from_meta(plant_meta)
+    return plant_from_meta(plant_meta, export_scene=export_scene)
 
 
-def replay_session(session: Session, mode: Mode, robot: Robot = "simulated") -> Trace:
+def replay_session(
+    session: Session, mode: Mode, robot: Robot = "simulated", sink: RunSink | None = None
+) -> Trace:
     """Re-run the session's recorded hand input through a fresh loop in `mode`.
 
     Args:
@@ -91,6 +105,7 @@ def replay_session(session: Session, mode: Mode, robot: Robot = "simulated") -> 
         mode: arbitration mode of the replay.
         robot: "simulated" (a fresh PyBullet robot and task, closed loop) or "recorded"
             (the robot states the session recorded, open loop).
+        sink: gets the run's records (and the scene, with per-tick poses) when it ends.
     """
     from dsteleop.app.plants.recorded import RecordedPlant
 
@@ -98,7 +113,7 @@ def replay_session(session: Session, mode: Mode, robot: Robot = "simulated") -> 
     plant: Plant = (
         RecordedPlant(session)
         if robot == "recorded"
-        else simulated_plant(session.meta.get("plant", {}))
+        else simulated_plant(session.meta.get("plant", {}), export_scene=sink is not None)
     )
     return run_headless(
         session.name,
@@ -107,6 +122,7 @@ def replay_session(session: Session, mode: Mode, robot: Robot = "simulated") -> 
         session_config(session, mode),
         plant,
         session.history,
+        sink,
     )
 
 

@@ -15,7 +15,7 @@ from typing import Any
 
 from dsteleop.app.inputs.tracked import replayed_samples
 from dsteleop.app.loop import LoopConfig
-from dsteleop.app.replay.core import run_headless, session_config, simulated_plant
+from dsteleop.app.replay.core import SinkFor, run_headless, session_config, simulated_plant
 from dsteleop.app.session.episodes import Episode
 from dsteleop.app.session.reader import Session
 from dsteleop.app.session.trace import Trace
@@ -72,9 +72,11 @@ def replay_video(
     *,
     rotate: int | None = None,
     allow_partial: bool = False,
+    sink_for: SinkFor | None = None,
 ) -> tuple[list[Trace], float]:
     """Track a video and run it as a session in each mode (with `arbitration`, default the
-    defaults); returns (traces, duration [s]). `rotate`, `allow_partial`: `track_video`."""
+    defaults); returns (traces, duration [s]). `rotate`, `allow_partial`: `track_video`;
+    `sink_for(name, mode)` gets each run's records."""
     samples = track_video(path, rotate=rotate, allow_partial=allow_partial)
     if not samples:
         raise InputError(f"{path}: no frames")
@@ -85,8 +87,10 @@ def replay_video(
     traces = []
     for mode in modes:
         hand = replayed_samples(samples, WorkspaceMapping(MappingConfig()), "tracked video")
+        sink = None if sink_for is None else sink_for(path.name, mode)
+        plant = simulated_plant({}, export_scene=sink is not None)
         traces.append(
-            run_headless(path.name, hand, ticks, cfg0.replace(mode=mode), simulated_plant({}))
+            run_headless(path.name, hand, ticks, cfg0.replace(mode=mode), plant, sink=sink)
         )
     return traces, duration
 
@@ -104,10 +108,13 @@ def frame_times(path: Path) -> list[float]:
 
 
 def replay_retracked(
-    session: Session, modes: Sequence[Mode], allow_partial: bool = False
+    session: Session,
+    modes: Sequence[Mode],
+    allow_partial: bool = False,
+    sink_for: SinkFor | None = None,
 ) -> list[tuple[Episode, Trace]]:
     """Re-run tracking on the session's video once, then the loop on every episode in each
-    mode; (episode, trace) pairs.
+    mode; (episode, trace) pairs. `sink_for(episode name, mode)` gets each run's records.
 
     The frame index (`frames.jsonl`) says how many frames the video must hold: every line
     is written after its frame, so even a session killed mid-recording has them all.
@@ -132,13 +139,15 @@ def replay_retracked(
         view = session.of_episode(episode)
         ticks = [r.t_s for r in view.records]
         for m in modes:
+            sink = None if sink_for is None else sink_for(view.name, m)
             trace = run_headless(
                 view.name,
                 replayed_samples(samples, WorkspaceMapping(mapping), "re-tracked video"),
                 ticks,
                 session_config(view, m),
-                simulated_plant(view.meta.get("plant", {})),
+                simulated_plant(view.meta.get("plant", {}), export_scene=sink is not None),
                 view.history,
+                sink,
             )
             out.append((episode, trace))
     return out

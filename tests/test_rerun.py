@@ -1,0 +1,192 @@
+"""Rerun recordings (docs/recordings.md), read back with Rerun's own dataframe API."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa  # type: ignore[import-untyped]
+import pytest
+import rerun.dataframe as rdf
+from numpy.typing import NDArray
+
+from dsteleop.app.replay.core import replay_session
+from dsteleop.app.rrd import layout
+from dsteleop.app.rrd.replay import write_part
+from dsteleop.app.session.reader import read_session
+from dsteleop.arbitration import STEP_ARRAYS, Mode
+
+CLI = [sys.executable, "-m", "dsteleop.app.cli.main"]
+RECORDINGS = Path(__file__).resolve().parents[1] / "recordings"
+GOLDEN_V1 = Path(__file__).resolve().parent / "golden" / "schema1-demo-DS-spoon"
+
+
+def cli(*args: str | Path, timeout: float = 600) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [*CLI, *map(str, args)], capture_output=True, text=True, timeout=timeout, check=False
+    )
+
+
+def column(
+    rec: rdf.Recording, entity: str, component: str
+) -> tuple[NDArray[np.float64], list[Any]]:
+    """(tick times [s], values) of one entity's component, one row per logged time."""
+    table = rec.view(index=layout.TIMELINE, contents=f"/{entity}").select().read_all()
+    name = next(n for n in table.schema.names if n.startswith(f"/{entity}:") and component in n)
+    t = np.array(table.column(layout.TIMELINE).cast(pa.int64()).to_pylist(), dtype=np.float64)
+    return t * 1e-9, table.column(name).to_pylist()
+
+
+def scalars(rec: rdf.Recording, entity: str) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    t, values = column(rec, entity, "Scalar")
+    return t, np.array([np.nan if v is None else v[0] for v in values], dtype=np.float64)
+
+
+def test_a_replay_of_two_modes_is_one_recording_on_one_timeline(tmp_path: Path) -> None:
+    """Every per-dimension series of every mode, one row per tick, equal to the run's values;
+    S and DS of the session side by side in one recording, on the same tick times."""
+    session = read_session(RECORDINGS / "demo-DS-spoon")
+    parts = tmp_path / "parts"
+    traces = {}
+    for mode in (Mode.S, Mode.DS):
+
+        def sink(records: Any, scene: Any, mode: Mode = mode) -> None:
+            write_part(
+                parts / f"{mode.value}.rrd",
+                session.name,
+                mode.value,
+                records,
+                scene,
+                session.meta["plant"] if mode is Mode.S else None,
+            )
+
+        traces[mode] = replay_session(session, mode, robot="recorded", sink=sink)
+    from dsteleop.app.rrd.files import merge
+
+    out = tmp_path / "both.rrd"
+    merge(sorted(parts.glob("*.rrd")), out)
+    archive = rdf.load_archive(out)
+    assert archive.num_recordings() == 1
+    rec = archive.all_recordings()[0]
+    assert rec.recording_id() == session.name and rec.application_id() == "dsteleop"
+    times = {}
+    for mode, tr in traces.items():
+        T = len(tr)
+        for q in STEP_ARRAYS:
+            for i, dim in enumerate(session.dims):
+                t, v = scalars(rec, layout.series(mode.value, q, dim))
+                assert len(v) == T, (mode, q, dim)
+                np.testing.assert_array_equal(v, getattr(tr.step, q)[:, i])
+                times[mode] = t
+        # The palm's translation per tick: the robot's achieved position.
+        _, palm = column(rec, layout.palm(mode.value), "Translation3D")
+        np.testing.assert_allclose(np.array(palm)[:, 0], tr.p_robot, atol=1e-6)
+    np.testing.assert_array_equal(times[Mode.S], times[Mode.DS])
+    np.testing.assert_allclose(times[Mode.DS], traces[Mode.DS].t_s, atol=1e-9)
+    # The recorded mode's replay against the recorded robot is the session's own arbitration.
+    recorded = np.array([r.step.alpha for r in session.records if r.step is not None])
+    _, yaw = scalars(rec, layout.series("DS", "alpha", "yaw"))
+    np.testing.assert_allclose(yaw[traces[Mode.DS].arbitrated], recorded[:, 5], atol=1e-9)
+    # Task events on the timeline, the true goals static.
+    _, events = column(rec, layout.events("DS"), "Text")
+    texts = [e[0] for e in events]
+    assert any(x.startswith("grasp") for x in texts) and any(x.startswith("success") for x in texts)
+    cols = {str(c) for c in rec.schema().component_columns()}
+    assert any(f"/{layout.goal_true('pick')}:" in c for c in cols)
+
+
+def test_replay_command_writes_the_scene_and_refuses_a_bad_path(tmp_path: Path) -> None:
+    out = tmp_path / "rec.rrd"
+    r = cli(
+        "replay", RECORDINGS / "demo-S-spoon", "--modes", "S,DS", "--out", tmp_path / "o",
+        "--no-plots", "--rerun", out,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["rerun"] == str(out)
+    rec = rdf.load_recording(out)
+    cols = {str(c) for c in rec.schema().component_columns()}
+    # The robot's links and the utensils, from the scene description the browser draws.
+    for frame in ("robot/palm", "spoon", "bin", "table"):
+        assert any(f"/S/scene/{frame}:" in c for c in cols), frame
+        assert any(f"/DS/scene/{frame}/visual_" in c for c in cols), frame
+    assert not list(tmp_path.glob(".rerun-parts-*"))  # the parts are gone
+    bad = cli("replay", RECORDINGS / "demo-S-spoon", "--out", tmp_path / "o2", "--rerun", "x.txt")
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr
+    assert bad.stderr.strip().splitlines()[-1].endswith("--rerun must name a .rrd file, got x.txt")
+
+
+def test_a_real_video_session_has_its_camera_frames_and_landmarks(
+    shared_data: Path, tmp_path: Path
+) -> None:
+    video = shared_data / "videos" / "open_hand_wave_landscape.mp4"
+    folder = tmp_path / "cam"
+    r = cli("run", "--source", f"video:{video}", "--record", folder, "--record-video")
+    assert r.returncode == 0, r.stderr
+    session = read_session(folder)
+    assert session.frames is not None
+    n_frames = len([x for x in session.frames.read_text().splitlines() if x.strip()])
+    out = tmp_path / "cam.rrd"
+    r = cli("replay", folder, "--modes", "S,DS", "--out", tmp_path / "o", "--no-plots",
+            "--rerun", out)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    rec = rdf.load_recording(out)
+    t_img, blobs = column(rec, layout.CAMERA_IMAGE, "Blob")
+    assert len(blobs) == n_frames > 100
+    first = bytes(np.asarray(blobs[0][0], dtype=np.uint8))
+    assert first[:2] == b"\xff\xd8"  # JPEG
+    _, media = column(rec, layout.CAMERA_IMAGE, "MediaType")
+    assert media[0] == ["image/jpeg"]
+    t_lm, lm = column(rec, layout.CAMERA_LANDMARKS, "Position2D")
+    assert len(lm) > 0.8 * n_frames
+    pts = np.array(lm[0])
+    assert pts.shape == (21, 2) and (pts[:, 0] > 0).all() and (pts[:, 0] < 852).all()
+    # Images and landmarks on the ticks' timeline: within the session's duration.
+    _, alpha = scalars(rec, layout.series("DS", "alpha", "x"))
+    assert len(alpha) == len(session.records)
+    assert 0 <= t_img.min() and t_lm.max() <= session.records[-1].t_s - session.records[0].t_s + 0.1
+
+
+def test_a_live_run_logs_every_tick_without_dropping(tmp_path: Path) -> None:
+    out = tmp_path / "live.rrd"
+    r = cli("run", "--source", "demo", "--seed", "2", "--rerun", out)
+    assert r.returncode == 0, r.stderr
+    summary = json.loads(r.stdout.strip().splitlines()[-1])
+    assert summary["rerun"]["ticks_dropped"] == 0
+    assert summary["rerun"]["ticks_logged"] == summary["ticks"]
+    rec = rdf.load_recording(out)
+    for q in ("alpha", "B", "U_out"):
+        _, v = scalars(rec, layout.series(layout.LIVE_ROOT, q, "yaw"))
+        assert len(v) == summary["ticks"]
+    _, status = column(rec, layout.status(layout.LIVE_ROOT), "Text")
+    assert status[0] == ["tracking"]
+    cols = {str(c) for c in rec.schema().component_columns()}
+    assert any("/live/scene/robot/palm:" in c for c in cols)
+
+
+def test_a_session_of_the_first_format_replays_into_a_recording(tmp_path: Path) -> None:
+    out = tmp_path / "old.rrd"
+    r = cli("replay", GOLDEN_V1, "--as-recorded", "--out", tmp_path / "o", "--no-plots",
+            "--rerun", out)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    s = read_session(GOLDEN_V1)
+    rec = rdf.load_recording(out)
+    _, v = scalars(rec, layout.series("DS", "alpha", "x"))
+    recorded = np.array([np.nan if x.step is None else x.step.alpha[0] for x in s.records])
+    np.testing.assert_allclose(v, recorded, atol=1e-9)
+
+
+@pytest.mark.parametrize("package", ["arbitration", "tracking", "robot"])
+def test_rerun_is_not_imported_by_the_core_packages(package: str) -> None:
+    code = (
+        "import importlib, pkgutil, sys\n"
+        f"import dsteleop.{package} as p\n"
+        "for m in pkgutil.iter_modules(p.__path__):\n"
+        f"    importlib.import_module('dsteleop.{package}.' + m.name)\n"
+        "print('rerun' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
