@@ -21,6 +21,18 @@ from dsteleop.app.session.reader import read_session
 from dsteleop.arbitration import STEP_ARRAYS, Mode
 
 CLI = [sys.executable, "-m", "dsteleop.app.cli.main"]
+
+
+@pytest.fixture(autouse=True)
+def strict_rerun() -> Any:
+    """Rerun raises instead of warning on what it cannot log (a dropped component)."""
+    import rerun as rr
+
+    rr.set_strict_mode(True)
+    yield
+    rr.set_strict_mode(False)
+
+
 RECORDINGS = Path(__file__).resolve().parents[1] / "recordings"
 GOLDEN_V1 = Path(__file__).resolve().parent / "golden" / "schema1-demo-DS-spoon"
 
@@ -190,3 +202,32 @@ def test_rerun_is_not_imported_by_the_core_packages(package: str) -> None:
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_the_scene_and_the_goals_log_without_a_dropped_component(tmp_path: Path) -> None:
+    """Every shape of the kitchen scene (boxes, spheres, capsules, meshes) and the true
+    goals, in strict mode: Rerun raises on anything it would drop."""
+    from dsteleop.app.plants.kitchen import KitchenPlant
+    from dsteleop.app.rrd import log as rlog
+    from dsteleop.app.rrd.files import file_recording
+
+    plant = KitchenPlant("spoon", seed=0, export_scene=True)
+    try:
+        plant.reset()
+        scene, meta = plant.scene(), plant.describe()
+    finally:
+        plant.close()
+    assert scene is not None
+    rec = file_recording(tmp_path / "scene.rrd", "scene")
+    rlog.log_scene_geometry(rec, "DS", scene)
+    rlog.log_true_goals(rec, meta)
+    rec.send_blueprint(rlog.blueprint(["S", "DS"], camera=True))
+    rec.flush()
+    rec.disconnect()
+    cols = {str(c) for c in rdf.load_recording(tmp_path / "scene.rrd").schema().component_columns()}
+    kinds = {c.split(":")[1].rstrip(")") for c in cols if "/visual_" in c}
+    # Boxes and spheres (half sizes), meshes (the file's bytes), each at its offset.
+    assert {"Boxes3DIndicator", "Ellipsoids3DIndicator", "Asset3DIndicator"} <= kinds
+    assert {"HalfSize3D", "Blob", "RotationQuat", "Translation3D"} <= kinds
+    assert any("/goal_true/pick:RotationQuat" in c for c in cols)
+    assert any("/goal_true/place:Translation3D" in c for c in cols)

@@ -38,6 +38,12 @@ def xyzw(R: Array) -> Array:
     return np.concatenate([q[..., 1:], q[..., :1]], axis=-1)
 
 
+def _quat(q_xyzw: Any) -> Any:
+    """A quaternion (x, y, z, w) for `rr.Transform3D` as a plain float32 array: rerun-sdk
+    0.23's `rr.Quaternion` does not convert under numpy 1.x (it asks numpy 2's `copy=`)."""
+    return np.asarray(q_xyzw, dtype=np.float32)
+
+
 def _send_poses(rec: rr.RecordingStream, path: str, t_s: Array, p: Array, R: Array) -> None:
     if len(t_s) == 0:
         return
@@ -155,9 +161,7 @@ def log_scene_geometry(rec: rr.RecordingStream, root: str, geometry: SceneGeomet
         w, x, y, z = v.wxyz_frame_visual
         rec.log(
             path,
-            rr.Transform3D(
-                translation=v.p_frame_visual_m, quaternion=rr.Quaternion(xyzw=[x, y, z, w])
-            ),
+            rr.Transform3D(translation=v.p_frame_visual_m, quaternion=_quat([x, y, z, w])),
             static=True,
         )
         shape = _shape(v)
@@ -196,9 +200,7 @@ def log_true_goals(rec: rr.RecordingStream, plant_meta: dict[str, Any]) -> None:
         R = np.asarray(g["R"], dtype=np.float64).reshape(3, 3)
         rec.log(
             layout.goal_true(name),
-            rr.Transform3D(
-                translation=p, quaternion=rr.Quaternion(xyzw=xyzw(R)), axis_length=AXIS_LENGTH_M
-            ),
+            rr.Transform3D(translation=p, quaternion=_quat(xyzw(R)), axis_length=AXIS_LENGTH_M),
             static=True,
         )
 
