@@ -360,3 +360,23 @@ def check_best_json_round_trips_through_sim(out: Path, tmp_path: Path) -> None:
     used = json.loads((sim_out / "summary.json").read_text())["config"]["arbitration"]
     assert used == best["arbitration"]
     assert not math.isnan(best["objective"]["value"])
+
+
+@pytest.mark.slow
+def test_quick_bench_runs_the_same_trials_alone_and_on_1_and_2_ray_workers() -> None:
+    """The figures are the README's, never asserted; the bench itself checks that every Ray
+    run evaluated the configurations the trial function ran alone."""
+    r = subprocess.run(
+        [sys.executable, "-m", "dsteleop.app.cli.main", "bench", "--only", "tune", "--quick"],
+        capture_output=True, text=True, timeout=600, check=False,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    tune_ = out["tune"]
+    assert tune_["trials"] == 2 and len(tune_["configurations"]) == 2
+    for name in ("alone", "ray_1_worker", "ray_2_workers"):
+        assert tune_[name]["trials_per_minute"] > 0
+    for name in ("ray_1_worker", "ray_2_workers"):
+        assert tune_[name]["cluster_start_s"] > 0
+        assert tune_[name]["trials_per_minute_with_start"] < tune_[name]["trials_per_minute"]
+    assert out["machine"]["cpu"] and out["machine_after"]["load_average"]

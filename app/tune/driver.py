@@ -260,6 +260,16 @@ def open_study(folder: Path, settings: TuneSettings | None, resume: bool) -> opt
     return study
 
 
+def memory_study(settings: TuneSettings) -> optuna.Study:
+    """A study kept in memory only (benchmarks)."""
+    import optuna
+
+    quiet_optuna()
+    study = optuna.create_study(study_name=STUDY_NAME, direction=settings.objective.direction)
+    study.set_user_attr("settings", settings.to_dict())
+    return study
+
+
 def journal_storage(path: Path) -> optuna.storages.BaseStorage:
     import optuna
     from optuna.storages.journal import JournalFileBackend, JournalFileOpenLock
