@@ -316,13 +316,8 @@ def make_sampler(settings: TuneSettings, n_before: int) -> optuna.samplers.BaseS
     seed = sampler_seed(settings.seed, n_before)
     if settings.sampler == "random":
         return optuna.samplers.RandomSampler(seed=seed)
-    constrained = settings.objective.constrained
-    return optuna.samplers.TPESampler(
-        seed=seed,
-        multivariate=True,
-        constant_liar=True,
-        constraints_func=_constraints if constrained else None,
-    )
+    # Constraints reach TPE through each trial's `set_constraint` (`run_trials`).
+    return optuna.samplers.TPESampler(seed=seed, multivariate=True, constant_liar=True)
 
 
 def _grid_sampler(grid: dict[str, list[Value]], seed: int) -> optuna.samplers.BaseSampler:
@@ -335,10 +330,6 @@ def _grid_sampler(grid: dict[str, list[Value]], seed: int) -> optuna.samplers.Ba
             return None
 
     return Grid(grid, seed=seed)
-
-
-def _constraints(trial: optuna.trial.FrozenTrial) -> Sequence[float]:
-    return list(trial.user_attrs.get("constraints", []))
 
 
 def distributions(space: Sequence[Dimension]) -> dict[str, Any]:
@@ -531,6 +522,8 @@ def run_trials(
             value = None
         else:
             trial.set_user_attr("constraints", cons)
+            for source, c in zip(settings.objective.sources, cons):
+                trial.set_constraint(source, c)  # feasible when <= 0 (TPE reads it)
             study.tell(trial, value)
         return TrialRecord(
             number=trial.number,

@@ -266,10 +266,14 @@ def _holdout_md(h: Mapping[str, Any] | None) -> list[str]:
     out = ["", "## Held-out evaluation", ""]
     if "study" in h:
         s = h["study"]
+        seen = (
+            f"the tuning used seed {s['tuning_seed']}, so none of them was seen while tuning"
+            if s["tuning_seed"] is not None
+            else "the study was not an objective of this tuning: an independent check"
+        )
         out.append(
             f"The base and the best configuration on {s['trajectories']} fresh trajectories of "
-            f"the closed-loop study (seed {s['seed']}; the tuning used seed {s['tuning_seed']}, "
-            "so none of them was seen while tuning), S and DS paired; 95 % intervals:"
+            f"the closed-loop study (seed {s['seed']}; {seen}), S and DS paired; 95 % intervals:"
         )
         out += [
             "",
