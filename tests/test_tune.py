@@ -286,8 +286,11 @@ def test_a_study_on_a_local_ray_cluster_records_failures_and_resumes(tmp_path: P
     finishes it (the sessions reaching the workers by path, then through the object store).
     """
     out, home = tmp_path / "study", tmp_path / "home"
+    # Without the constraint every complete trial can be the best: best.json always exists
+    # (whether DS meets S's successes on 3 trajectories is not this test's question).
     common = ["--sampler", "grid", "--space", "p=0.8,4", "--space", "window=3,5", "--seed", "1",
-              "--trajectories", "3", "--holdout-trajectories", "8", "--workers", "2"]  # fmt: skip
+              "--no-constraint", "--trajectories", "3", "--holdout-trajectories", "8",
+              "--workers", "2"]  # fmt: skip
     first = tune(
         out, home, "--objective", "both", "--sessions", str(SESSION), "--trials", "2", *common
     )
@@ -343,10 +346,9 @@ def test_a_study_on_a_local_ray_cluster_records_failures_and_resumes(tmp_path: P
     md = (out / "summary.md").read_text()
     assert "ConfigError: p must be > 1" in md and "## Held-out evaluation" in md
     assert "Held-out sessions (1)" in md
-    best = summary["best"]
-    if best is not None:  # both complete trials met the constraint on these trajectories
-        check_best_json_round_trips_through_sim(out, tmp_path)
-        assert summary["holdout_gain_DS_over_base"]["trajectories"] == 8
+    assert summary["best"]["number"] in (int(r["number"]) for r in rows if r["state"] == "COMPLETE")
+    assert summary["holdout_gain_DS_over_base"]["trajectories"] == 8
+    check_best_json_round_trips_through_sim(out, tmp_path)
 
 
 def check_best_json_round_trips_through_sim(out: Path, tmp_path: Path) -> None:

@@ -30,11 +30,15 @@ import time
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from dsteleop.app.cli.options import arbitration_config
 from dsteleop.app.cli.progress import Progress, prepare_out_dir
 from dsteleop.errors import ConfigError, InputError
+
+if TYPE_CHECKING:  # the command imports them when it runs (an instant --help)
+    from dsteleop.app.tune.cluster import RayExecutor
+    from dsteleop.app.tune.driver import TrialRecord, TuneSettings
 
 log = logging.getLogger("dsteleop.tune")
 
@@ -243,7 +247,7 @@ def command(args: argparse.Namespace) -> TuneCommand:
     )
 
 
-def new_settings(given: dict[str, Any]) -> Any:
+def new_settings(given: dict[str, Any]) -> TuneSettings:
     """The settings of a new study: the given options over the defaults."""
     from dsteleop.app.tune.driver import SETTINGS_SCHEMA, TuneSettings
     from dsteleop.app.tune.space import DEFAULT_SPACE
@@ -265,7 +269,7 @@ def new_settings(given: dict[str, Any]) -> Any:
     return _check(TuneSettings.from_dict(d))
 
 
-def resumed_settings(stored: Any, given: dict[str, Any]) -> Any:
+def resumed_settings(stored: TuneSettings, given: dict[str, Any]) -> TuneSettings:
     """The stored study's settings; a given option that differs is a ConfigError."""
     current = stored.to_dict()
     for k, v in given.items():
@@ -277,7 +281,7 @@ def resumed_settings(stored: Any, given: dict[str, Any]) -> Any:
     return _check(stored)
 
 
-def _check(settings: Any) -> Any:
+def _check(settings: TuneSettings) -> TuneSettings:
     """Checks that need the whole settings."""
     from dsteleop.app.study.core import OPERATOR_FIELDS
 
@@ -347,7 +351,7 @@ def run(args: argparse.Namespace) -> int:
         best_so_far = driver.best_of(driver.records(study, settings.space), settings.objective)
         failed = 0
 
-        def on_trial(rec: Any) -> None:
+        def on_trial(rec: TrialRecord) -> None:
             nonlocal best_so_far, failed
             failed += rec.state == "FAIL"
             if driver.best_of([r for r in (best_so_far, rec) if r], settings.objective) is rec:
@@ -399,7 +403,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _holdout_seed(cmd: TuneCommand, settings: Any) -> int:
+def _holdout_seed(cmd: TuneCommand, settings: TuneSettings) -> int:
     tuning = settings.batch.seed if settings.batch is not None else DEFAULTS["study_seed"]
     seed = cmd.holdout_seed if cmd.holdout_seed is not None else tuning + 1
     if seed < 0:
@@ -414,9 +418,9 @@ def _holdout_seed(cmd: TuneCommand, settings: Any) -> int:
 
 def _holdout(
     cmd: TuneCommand,
-    settings: Any,
-    executor: Any,
-    best: Any,
+    settings: TuneSettings,
+    executor: RayExecutor,
+    best: TrialRecord | None,
     seed: int,
     via: Literal["path", "store"],
     show: bool,
@@ -460,9 +464,9 @@ def _holdout(
 
 def _write(
     cmd: TuneCommand,
-    settings: Any,
-    recs: list[Any],
-    best: Any,
+    settings: TuneSettings,
+    recs: list[TrialRecord],
+    best: TrialRecord | None,
     holdout: dict[str, Any] | None,
     out: Path,
 ) -> list[str]:
@@ -489,9 +493,9 @@ def _write(
 
 def _summary(
     cmd: TuneCommand,
-    settings: Any,
-    recs: list[Any],
-    best: Any,
+    settings: TuneSettings,
+    recs: list[TrialRecord],
+    best: TrialRecord | None,
     holdout: dict[str, Any] | None,
     cluster: dict[str, Any],
     timing: dict[str, Any],
