@@ -4,6 +4,7 @@ small studies on a real local Ray cluster (a failing trial is recorded and the s
 
 from __future__ import annotations
 
+import argparse
 import csv
 import json
 import math
@@ -19,6 +20,7 @@ import numpy as np
 import pytest
 
 from dsteleop.app.cli.main import main
+from dsteleop.app.cli.options import add_loop_options, loop_options
 from dsteleop.app.tune import driver
 from dsteleop.app.tune.objective import Objective, key
 from dsteleop.app.tune.space import DEFAULT_SPACE, parse_dimension, parse_space
@@ -361,6 +363,11 @@ def check_best_json_round_trips_through_sim(out: Path, tmp_path: Path) -> None:
     assert code == 0
     used = json.loads((sim_out / "summary.json").read_text())["config"]["arbitration"]
     assert used == best["arbitration"]
+    # run and serve read it through the same loop options.
+    parser = argparse.ArgumentParser()
+    add_loop_options(parser, "demo")
+    loop = loop_options(parser.parse_args(["--config", str(out / "best.json")])).loop
+    assert loop.arbitration.to_dict() == best["arbitration"]
     assert not math.isnan(best["objective"]["value"])
 
 

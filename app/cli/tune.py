@@ -304,7 +304,7 @@ def run(args: argparse.Namespace) -> int:
     t_start = time.monotonic()
     cmd = command(args)
     from dsteleop.app.tune import driver
-    from dsteleop.app.tune.cluster import RayExecutor, check_reachable
+    from dsteleop.app.tune.cluster import RayExecutor
     from dsteleop.app.tune.space import out_of_domain
 
     out = prepare_out_dir(cmd.out)
@@ -325,7 +325,6 @@ def run(args: argparse.Namespace) -> int:
     holdout_seed = _holdout_seed(cmd, settings)
     for line in out_of_domain(settings.space, settings.base):
         log.warning("tune: %s; trials that draw it will fail", line)
-    check_reachable(cmd.address)
     show = sys.stderr.isatty() if cmd.progress is None else bool(cmd.progress)
 
     t0 = time.monotonic()

@@ -57,12 +57,13 @@ def parse_address(address: str | None) -> tuple[str, int] | None:
 
 
 def check_reachable(address: str | None) -> None:
-    """A TCP connection to the address's HOST:PORT opens (nothing for local or auto).
+    """A TCP connection to the address's HOST:PORT opens (nothing for a local cluster; for
+    `auto`, the address Ray would use: $RAY_ADDRESS, else the cluster last started here).
 
     Raises:
         InputError: it does not (one line with the reason).
     """
-    target = parse_address(address)
+    target = _auto_address() if address == "auto" else parse_address(address)
     if target is None:
         return
     try:
@@ -70,9 +71,24 @@ def check_reachable(address: str | None) -> None:
             pass
     except OSError as exc:
         reason = exc.strerror or str(exc) or type(exc).__name__
+        where = f"{address} ({target[0]}:{target[1]})" if address == "auto" else address
         raise InputError(
-            f"--address {address}: cannot reach a Ray cluster there ({reason})"
+            f"--address {where}: cannot reach a Ray cluster there ({reason})"
         ) from None
+
+
+def _auto_address() -> tuple[str, int]:
+    """Where `auto` points: Ray's own lookup (Ray 2.60's `canonicalize_bootstrap_address`)."""
+    from ray._private.services import canonicalize_bootstrap_address
+
+    try:
+        found = canonicalize_bootstrap_address("auto")
+    except Exception as exc:  # Ray raises ConnectionError, ValueError, ... when it finds none
+        raise InputError(f"--address auto: {describe_error(exc)}") from None
+    if not found:
+        raise InputError("--address auto: no Ray cluster runs on this machine (ray start)")
+    host, _, port = str(found).rpartition(":")
+    return host.strip("[]"), int(port)
 
 
 class RayExecutor:
@@ -87,10 +103,10 @@ class RayExecutor:
     def __init__(self, address: str | None = None, workers: int | None = None) -> None:
         if workers is not None and workers < 1:
             raise ConfigError(f"--workers must be >= 1, got {workers}")
-        check_reachable(address)
         self.address = address
         self.local = address is None
         _quiet_environment(local=self.local)
+        check_reachable(address)
         import ray
 
         self._ray = ray
