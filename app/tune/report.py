@@ -121,6 +121,8 @@ def _p(v: Any) -> str:
     """A p-value: two decimals, or one significant digit below 0.01."""
     if v is None or not math.isfinite(float(v)):
         return "-"
+    if v == 0:
+        return "< 1e-300"  # below what a double holds
     return f"{v:.2f}" if v >= 0.01 else f"{v:.1g}"
 
 
