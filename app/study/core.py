@@ -737,7 +737,10 @@ def _simulate(
     def poses(p: Array, c: Array) -> Array:
         out = np.empty((J, T, 3))
         out[..., :2] = np.swapaxes(p[:T], 0, 1)
-        out[..., 2] = np.arctan2(c[:T, :, 1], c[:T, :, 0]).T
+        # Past a row's length the buffers hold whatever memory held (overwritten with NaN
+        # just below), which may be NaN: no warning for those entries.
+        with np.errstate(invalid="ignore"):
+            out[..., 2] = np.arctan2(c[:T, :, 1], c[:T, :, 0]).T
         np.copyto(out, np.nan, where=past[..., None])
         return out
 
