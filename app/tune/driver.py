@@ -409,7 +409,7 @@ def records(study: optuna.Study, space: Sequence[Dimension]) -> list[TrialRecord
 def best_of(recs: Sequence[TrialRecord], objective: Objective) -> TrialRecord | None:
     """The feasible complete trial with the best value (the lowest number among equals)."""
     best: TrialRecord | None = None
-    for r in recs:
+    for r in sorted(recs, key=lambda r: r.number):
         if not r.feasible or r.value is None or not math.isfinite(r.value):
             continue
         if best is None or objective.better(r.value, best.value or 0.0):

@@ -266,6 +266,8 @@ def _holdout_md(h: Mapping[str, Any] | None) -> list[str]:
             "None was run (no best configuration, or `--holdout-trajectories 0`).",
         ]
     out = ["", "## Held-out evaluation", ""]
+    if "error" in h:
+        out.append(f"It could not run: {h['error']}")
     if "study" in h:
         s = h["study"]
         seen = (
