@@ -351,6 +351,37 @@ def paired_t_test(a: ArrayLike, b: ArrayLike) -> TTest:
     return _t_result(float(d.mean()), se, float(d.size - 1))
 
 
+@dataclass(frozen=True)
+class Difference:
+    """Mean paired difference a - b with its t interval (`paired_difference`)."""
+
+    mean: float
+    ci_low: float
+    ci_high: float
+    n: int
+
+
+def paired_difference(a: ArrayLike, b: ArrayLike, confidence: float = 0.95) -> Difference:
+    """Mean of a - b over pairs (the same trials under two conditions) and its t interval,
+    mean -/+ t_{(1 + confidence) / 2, n - 1} sd(a - b) / sqrt(n); pairs where either value is
+    not finite are dropped. For 0/1 outcomes (success) it is the Wald interval of a paired
+    difference of proportions with a t quantile.
+
+    Raises:
+        ValueError: different shapes, or fewer than two finite pairs.
+    """
+    x, y = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    if x.shape != y.shape:
+        raise ValueError("a paired difference needs two equally long samples")
+    ok = np.isfinite(x) & np.isfinite(y)
+    d = x[ok] - y[ok]
+    if d.size < 2:
+        raise ValueError("a paired difference needs at least two finite pairs")
+    m = float(d.mean())
+    half = t_quantile(0.5 + confidence / 2.0, d.size - 1) * float(d.std(ddof=1)) / math.sqrt(d.size)
+    return Difference(m, m - half, m + half, int(d.size))
+
+
 def js_divergence(P: ArrayLike, Q: ArrayLike) -> float:
     """Jensen-Shannon divergence (base 2, in [0, 1]) of two histograms of the same shape.
 

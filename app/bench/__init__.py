@@ -23,6 +23,7 @@ GROUPS: dict[str, str] = {
     "tracking": "dsteleop.app.bench.tracking:run",
     "robot": "dsteleop.app.bench.robot:run",
     "loop": "dsteleop.app.bench.loop:run",
+    "tune": "dsteleop.app.bench.tune:run",
 }
 
 

@@ -27,6 +27,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "sim": ("dsteleop.app.cli.sim", "reproduce the paper's simulation study (S vs DS); report"),
     "serve": ("dsteleop.app.cli.serve", "run the live session and its browser view"),
     "track": ("dsteleop.app.cli.track", "track a hand in a video, images, camera or synthetic"),
+    "tune": ("dsteleop.app.cli.tune", "tune the arbitration's hyper-parameters (Optuna, Ray)"),
 }
 
 log = logging.getLogger("dsteleop")

@@ -47,6 +47,7 @@ class Progress:
         self.done = 0
         self.t0 = time.monotonic()
         self._last = -1.0
+        self.status = ""  # shown after the counts (e.g. the best value so far)
 
     def __enter__(self) -> Progress:
         self._draw(force=True)
@@ -58,9 +59,18 @@ class Progress:
             self.stream.write("\n")
             self.stream.flush()
 
-    def advance(self, n: int = 1) -> None:
+    def advance(self, n: int = 1, status: str | None = None) -> None:
         self.done = min(self.total, self.done + int(n))
+        if status is not None:
+            self.status = status
         self._draw()
+
+    def eta_s(self) -> float | None:
+        """Seconds left at the average rate so far (None before the first unit is done)."""
+        if self.done == 0:
+            return None
+        elapsed = time.monotonic() - self.t0
+        return elapsed * (self.total - self.done) / self.done
 
     def _draw(self, force: bool = False) -> None:
         if not self.enabled:
@@ -76,5 +86,11 @@ class Progress:
             f"\r{self.label} [{bar}] {frac:4.0%} {self.done}/{self.total} {self.unit} "
             f"{now - self.t0:5.1f} s"
         )
+        eta = self.eta_s()
+        if eta is not None and self.done < self.total:
+            msg += f", ETA {eta:4.0f} s"
+        if self.status:
+            msg += f"  {self.status}"
+        msg += "\x1b[K"  # clear what a longer earlier line left
         self.stream.write(msg)
         self.stream.flush()

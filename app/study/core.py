@@ -86,6 +86,12 @@ PHASE_EDGES = np.linspace(0.0, 1.0, 11)  # deciles of each trial for the by-phas
 Y_ONLY_MPS = 0.02  # operator speed along y above which a y-only action counts [m/s]
 
 
+#: The fields of ArbitrationConfig that the study's simulated operators read (their speed caps
+#: sit just under the robot's velocity limits: `SimConfig.operator_profile`, `planar_strategy`).
+#: Changing one changes the simulated person, not only the arbitration.
+OPERATOR_FIELDS: tuple[str, ...] = ("v_max_mps", "w_max_radps", "g_max_per_s")
+
+
 def planar_strategy(arb: ArbitrationConfig) -> OperatorStrategy:
     """The default operator strategy of the planar study: noise only in x, y and heading,
     speeds capped just under the robot's limits."""
@@ -731,7 +737,10 @@ def _simulate(
     def poses(p: Array, c: Array) -> Array:
         out = np.empty((J, T, 3))
         out[..., :2] = np.swapaxes(p[:T], 0, 1)
-        out[..., 2] = np.arctan2(c[:T, :, 1], c[:T, :, 0]).T
+        # Past a row's length the buffers hold whatever memory held (overwritten with NaN
+        # just below), which may be NaN: no warning for those entries.
+        with np.errstate(invalid="ignore"):
+            out[..., 2] = np.arctan2(c[:T, :, 1], c[:T, :, 0]).T
         np.copyto(out, np.nan, where=past[..., None])
         return out
 
@@ -1104,6 +1113,32 @@ def summarise(res: StudyResult, figures: StudyResult | None = None) -> dict[str,
     }
     if "S" in res.modes and "DS" in res.modes:
         out["tests"]["S_vs_DS"] = compare(res.modes["S"], res.modes["DS"])
+    return out
+
+
+def headline(r: ModeResult) -> dict[str, float]:
+    """The headline numbers of one mode over its trajectories, flat (for tuning and tables).
+
+    Keys: `success` (Laplace estimate) with `successes`, `n` and its adjusted-Wald interval
+    `success_ci_low`/`_high`; `agreement` and `cosine_distance` (means over trajectories, nan
+    without any) with the half-widths of their 95 % t intervals (`*_ci_half`); `time_s` (the
+    geometric mean [s]) and `gave_up` (the share of trials the operator gave up).
+    """
+    sr = metrics.success_rate(int(r.success.sum()), int(r.success.size))
+    out: dict[str, float] = {
+        "success": sr.laplace,
+        "successes": float(sr.successes),
+        "n": float(sr.n),
+        "success_ci_low": sr.ci_low,
+        "success_ci_high": sr.ci_high,
+    }
+    for name, x in (("agreement", r.agreement), ("cosine_distance", r.cosine_mean)):
+        m = _mean_ci(x)
+        lo, hi = m["ci95"]
+        out[name] = math.nan if m["mean"] is None else float(m["mean"])
+        out[f"{name}_ci_half"] = math.nan if lo is None else float(hi - lo) / 2.0
+    out["time_s"] = metrics.geometric_mean(r.time_s).mean
+    out["gave_up"] = float(r.gave_up.mean())
     return out
 
 

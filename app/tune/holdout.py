@@ -1,0 +1,164 @@
+"""The tuned configuration against the base one on HELD-OUT data: trajectories of the
+closed-loop study drawn with another seed than the tuning batch's (and, when given, held-out
+sessions), so the tuned configuration is never scored on what it was tuned on. The best of
+many trials on one batch is optimistic by selection; this fresh evaluation is not.
+
+Both configurations run S and DS on the same held-out trajectories (paired). Reported per
+configuration and mode: the headline numbers with their 95 % intervals
+(`app.study.core.headline`); the gain of the tuned configuration's DS over the base's DS per
+metric as the mean paired difference over trajectories with its 95 % t interval
+(`metrics.paired_difference`; time as the ratio of geometric means, from log times); and, on
+the tuned configuration, DS against S (the constraint, held out) with the N-1 chi-squared
+test.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dsteleop.app.study.core import ModeResult, StudyResult, headline, merge
+from dsteleop.app.tune.driver import Executor, TaskError, TuneSettings
+from dsteleop.app.tune.trial import StudyBatch, session_task, sessions_metrics, study_chunk
+from dsteleop.arbitration import ArbitrationConfig, metrics
+from dsteleop.errors import DsteleopError
+
+#: Trajectories per held-out task at most (smaller tasks spread better over a cluster).
+CHUNK = 250
+
+
+class HoldoutError(DsteleopError):
+    """The held-out evaluation could not run (a task failed)."""
+
+
+def study_holdout(
+    executor: Executor,
+    batch: StudyBatch,
+    configs: Mapping[str, Mapping[str, Any]],
+    on_task: Callable[[], None] | None = None,
+) -> dict[str, StudyResult]:
+    """Every configuration of `configs` (name -> ArbitrationConfig fields) on every
+    trajectory of `batch`, S and DS, in chunks of at most CHUNK trajectories as tasks."""
+    chunks = _chunks(batch.trajectories, executor.capacity)
+    handles = {
+        executor.submit(study_chunk, batch, dict(cfg), idx): name
+        for name, cfg in configs.items()
+        for idx in chunks
+    }
+    parts: dict[str, list[Any]] = {name: [] for name in configs}
+    waiting = list(handles)
+    while waiting:
+        for h in executor.ready(waiting, timeout_s=0.5):
+            waiting.remove(h)
+            try:
+                parts[handles[h]].append(executor.result(h))
+            except TaskError as exc:
+                raise HoldoutError(f"held-out evaluation: a task failed: {exc}") from None
+            if on_task is not None:
+                on_task()
+    return {
+        name: merge(batch.config(ArbitrationConfig.from_dict(dict(cfg))), parts[name])
+        for name, cfg in configs.items()
+    }
+
+
+def _chunks(n: int, capacity: int) -> list[list[int]]:
+    """Trajectories 0 .. n - 1 in contiguous chunks: at most CHUNK each, and at least one
+    per core of the cluster."""
+    pieces = max(math.ceil(n / CHUNK), min(capacity, n))
+    bounds = np.linspace(0, n, pieces + 1).astype(int)
+    return [list(range(a, b)) for a, b in itertools.pairwise(bounds) if b > a]
+
+
+def tasks(batch: StudyBatch, configs: int, capacity: int) -> int:
+    """How many tasks `study_holdout` submits."""
+    return configs * len(_chunks(batch.trajectories, capacity))
+
+
+def compare(
+    results: Mapping[str, StudyResult], base: str = "base", tuned: str = "best"
+) -> dict[str, Any]:
+    """The report of the module docstring from `study_holdout`'s results."""
+    out: dict[str, Any] = {"trajectories": int(results[base].lengths.size)}
+    for name, res in results.items():
+        out[name] = {mode: headline(r) for mode, r in res.modes.items()}
+    a, b = results[tuned].modes["DS"], results[base].modes["DS"]
+    out["gain_DS"] = gains(a, b)
+    out["gain_S"] = gains(results[tuned].modes["S"], results[base].modes["S"])
+    s, ds = results[tuned].modes["S"], results[tuned].modes["DS"]
+    chi = metrics.n1_chi_squared(
+        int(ds.success.sum()), ds.success.size, int(s.success.sum()), s.success.size
+    )
+    out["tuned_DS_vs_S"] = {
+        "successes_DS": int(ds.success.sum()),
+        "successes_S": int(s.success.sum()),
+        "n": int(s.success.size),
+        "constraint_met": bool(ds.success.sum() >= s.success.sum()),
+        "success_n1_chi2_p": chi.p_value,
+        "agreement_difference": _diff(ds.agreement, s.agreement),
+    }
+    return out
+
+
+def gains(a: ModeResult, b: ModeResult) -> dict[str, Any]:
+    """Paired differences a - b per metric over the same trajectories."""
+    out = {
+        "success": _diff(a.success.astype(np.float64), b.success.astype(np.float64)),
+        "agreement": _diff(a.agreement, b.agreement),
+        "cosine_distance": _diff(a.cosine_mean, b.cosine_mean),
+    }
+    d = metrics.paired_difference(np.log(a.time_s), np.log(b.time_s))
+    out["time_ratio"] = {
+        "mean": math.exp(d.mean),
+        "ci95": [math.exp(d.ci_low), math.exp(d.ci_high)],
+        "n": d.n,
+    }
+    return out
+
+
+def _diff(a: NDArray[np.float64], b: NDArray[np.float64]) -> dict[str, Any]:
+    d = metrics.paired_difference(a, b)
+    t = metrics.paired_t_test(
+        a[np.isfinite(a) & np.isfinite(b)], b[np.isfinite(a) & np.isfinite(b)]
+    )
+    return {"mean": d.mean, "ci95": [d.ci_low, d.ci_high], "n": d.n, "p_value": t.p_value}
+
+
+def sessions_holdout(
+    executor: Executor,
+    refs: Sequence[Any],
+    configs: Mapping[str, Mapping[str, Any]],
+    on_task: Callable[[], None] | None = None,
+) -> dict[str, dict[str, float]]:
+    """Every configuration on every held-out session, S and DS: the sessions' metrics per
+    configuration (`app.tune.trial.sessions_metrics`)."""
+    handles = {
+        executor.submit(session_task, ref, mode, dict(cfg)): name
+        for name, cfg in configs.items()
+        for ref in refs
+        for mode in ("S", "DS")
+    }
+    runs: dict[str, list[Any]] = {name: [] for name in configs}
+    waiting = list(handles)
+    while waiting:
+        for h in executor.ready(waiting, timeout_s=0.5):
+            waiting.remove(h)
+            try:
+                runs[handles[h]].append(executor.result(h))
+            except TaskError as exc:
+                raise HoldoutError(f"held-out sessions: a replay failed: {exc}") from None
+            if on_task is not None:
+                on_task()
+    return {name: sessions_metrics(r) for name, r in runs.items()}
+
+
+def settings_configs(
+    settings: TuneSettings, params: Mapping[str, Any]
+) -> dict[str, dict[str, Any]]:
+    """The two configurations compared: the base and the tuned one."""
+    return {"base": settings.base.to_dict(), "best": settings.arbitration(dict(params))}

@@ -1,0 +1,142 @@
+"""What `dsteleop tune` optimises, stated once, and how a trial's metrics score against it.
+
+A trial evaluates one configuration on its sources, S and DS paired:
+
+    study      a fixed, seeded batch of the closed-loop study's trajectories (the same for
+               every trial): metrics over trajectories
+    sessions   headless replays of recorded sessions: metrics over sessions
+
+Per source and mode the metrics are (docs/METHOD.md §7): `success` (the share of successful
+trials; `successes` and `n` beside it), `agreement` (the mean ratio of agreement),
+`cosine_distance` (the mean cosine distance per action) and `time_s` (the geometric mean
+time [s]).
+
+The objective (the default: maximise DS's ratio of agreement):
+
+    value       the chosen metric of DS; with both sources, the mean of the two sources'
+                values (each weighs half)
+    constraint  (unless turned off) DS succeeds at least as often as S on the same paired
+                trials, on every source: c = successes(S) - successes(DS) <= 0
+    best        the feasible complete trial with the best value (the lowest trial number
+                among equal values)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Literal
+
+from dsteleop.errors import ConfigError
+
+Source = Literal["study", "sessions"]
+Metric = Literal["agreement", "cosine_distance", "time_s", "success"]
+ObjectiveKind = Literal["study", "sessions", "both"]
+
+OBJECTIVES: tuple[str, ...] = ("study", "sessions", "both")
+METRICS: tuple[str, ...] = ("agreement", "cosine_distance", "time_s", "success")
+#: Every per-mode metric a trial reports, in report order.
+MODE_METRICS: tuple[str, ...] = ("success", "agreement", "cosine_distance", "time_s")
+MAXIMISE: Mapping[str, bool] = {
+    "agreement": True,
+    "success": True,
+    "cosine_distance": False,
+    "time_s": False,
+}
+LABELS: Mapping[str, str] = {
+    "agreement": "ratio of agreement",
+    "success": "success rate",
+    "cosine_distance": "cosine distance",
+    "time_s": "time [s]",
+}
+
+
+def key(source: str, mode: str, metric: str) -> str:
+    """The flat name of one metric in a trial's results, e.g. `study.DS.agreement`."""
+    return f"{source}.{mode}.{metric}"
+
+
+@dataclass(frozen=True)
+class Objective:
+    """What a tuning study optimises.
+
+    Attributes:
+        kind: the sources, `study`, `sessions` or `both`.
+        metric: the DS metric optimised (maximised or minimised by its nature).
+        constrained: DS must succeed at least as often as S on every source.
+    """
+
+    kind: ObjectiveKind = "study"
+    metric: Metric = "agreement"
+    constrained: bool = True
+
+    def __post_init__(self) -> None:
+        if self.kind not in OBJECTIVES:
+            raise ConfigError(
+                f"unknown objective {self.kind!r} (choose from {', '.join(OBJECTIVES)})"
+            )
+        if self.metric not in METRICS:
+            raise ConfigError(f"unknown metric {self.metric!r} (choose from {', '.join(METRICS)})")
+
+    @property
+    def sources(self) -> tuple[Source, ...]:
+        if self.kind == "both":
+            return ("study", "sessions")
+        return (self.kind,)
+
+    @property
+    def maximise(self) -> bool:
+        return MAXIMISE[self.metric]
+
+    @property
+    def direction(self) -> Literal["maximize", "minimize"]:
+        """Optuna's name for the direction."""
+        return "maximize" if self.maximise else "minimize"
+
+    def statement(self) -> str:
+        """The objective in one sentence (printed in every output)."""
+        where = {
+            "study": "the closed-loop study's tuning trajectories",
+            "sessions": "the replayed sessions",
+            "both": "the study's tuning trajectories and the replayed sessions (the mean of "
+            "the two, each weighing half)",
+        }[self.kind]
+        verb = "maximise" if self.maximise else "minimise"
+        text = f"{verb} DS's {LABELS[self.metric]} on {where}"
+        if self.constrained:
+            text += (
+                ", subject to DS succeeding at least as often as S on the same paired trials"
+                + (" (on each source)" if self.kind == "both" else "")
+            )
+        return text
+
+    def value(self, metrics: Mapping[str, float]) -> float:
+        """The objective's value of one trial's metrics."""
+        vals = [float(metrics[key(s, "DS", self.metric)]) for s in self.sources]
+        return sum(vals) / len(vals)
+
+    def constraints(self, metrics: Mapping[str, float]) -> list[float]:
+        """Per source, successes(S) - successes(DS): feasible when every one is <= 0
+        (an empty list when unconstrained)."""
+        if not self.constrained:
+            return []
+        return [
+            float(metrics[key(s, "S", "successes")]) - float(metrics[key(s, "DS", "successes")])
+            for s in self.sources
+        ]
+
+    def feasible(self, metrics: Mapping[str, float]) -> bool:
+        return all(c <= 0 for c in self.constraints(metrics))
+
+    def better(self, a: float, b: float) -> bool:
+        """a is strictly better than b."""
+        return a > b if self.maximise else a < b
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "kind": self.kind,
+            "metric": self.metric,
+            "constrained": self.constrained,
+            "direction": self.direction,
+            "statement": self.statement(),
+        }

@@ -1,0 +1,328 @@
+"""The tuning study's written outputs: trials.csv, best.json, summary.md, summary.json.
+
+trials.csv    one row per finished trial, in trial order: number, state (COMPLETE or
+              FAIL), the objective's value, whether the constraint held, the parameters,
+              the constraint per source, every metric (`<source>.<MODE>.<metric>`),
+              the trial's own compute time and its wall time [s], and the error of a
+              failed trial
+best.json     the best configuration as `{"arbitration": {...}, "objective": {...},
+              "note": ..., "schema": ...}`: every field of the arbitration configuration,
+              so `dsteleop run|serve|sim --config DIR/best.json` takes it as is
+summary.md    what was searched, the objective, the best configuration and its gain over
+              the base configuration on held-out data, with intervals
+summary.json  the same, machine-readable
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import statistics
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from dsteleop.app.tune.driver import TrialRecord, TuneSettings
+from dsteleop.app.tune.objective import LABELS, MODE_METRICS
+
+BEST_SCHEMA = "dsteleop.tune_best/1"
+SUMMARY_SCHEMA = "dsteleop.tune_summary/1"
+#: Per-mode metric keys in report order (the rest follow alphabetically).
+ORDER = (
+    "success", "successes", "n", "success_ci_low", "success_ci_high", "agreement",
+    "agreement_ci_half", "cosine_distance", "cosine_distance_ci_half", "time_s", "gave_up",
+)  # fmt: skip
+
+
+def metric_columns(recs: Sequence[TrialRecord]) -> list[str]:
+    names = {k for r in recs for k in r.metrics}
+
+    def rank(k: str) -> tuple[int, int, int, str]:
+        parts = k.split(".")
+        source = 0 if parts[0] == "study" else 1
+        if len(parts) == 2:  # <source>.seconds
+            return (source, 9, 0, k)
+        mode = 0 if parts[1] == "S" else 1
+        m = ORDER.index(parts[2]) if parts[2] in ORDER else len(ORDER)
+        return (source, mode, m, k)
+
+    return sorted(names, key=rank)
+
+
+def write_trials_csv(settings: TuneSettings, recs: Sequence[TrialRecord], path: Path) -> None:
+    params = [d.name for d in settings.space]
+    sources = settings.objective.sources if settings.objective.constrained else ()
+    metrics = metric_columns(recs)
+    header = [
+        "number", "state", "value", "feasible", *params,
+        *(f"constraint.{s}" for s in sources), *metrics, "seconds", "wall_s", "error",
+    ]  # fmt: skip
+    with path.open("w", newline="", encoding="utf-8") as f:
+        w = csv.writer(f)
+        w.writerow(header)
+        for r in sorted(recs, key=lambda r: r.number):
+            cons = list(r.constraints) + [None] * (len(sources) - len(r.constraints))
+            w.writerow(
+                [
+                    r.number, r.state, _cell(r.value),
+                    "" if r.state != "COMPLETE" else int(r.feasible),
+                    *(_cell(r.params.get(p)) for p in params),
+                    *(_cell(c) for c in cons[: len(sources)]),
+                    *(_cell(r.metrics.get(m)) for m in metrics),
+                    _cell(round(r.seconds, 3)), _cell(round(r.wall_s, 3)), r.error,
+                ]
+            )  # fmt: skip
+
+
+def _cell(v: Any) -> Any:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return ""
+    return v
+
+
+def best_json(
+    settings: TuneSettings, best: TrialRecord, holdout: Mapping[str, Any] | None, out: Path
+) -> dict[str, Any]:
+    """best.json's object (module docstring)."""
+    objective: dict[str, Any] = {
+        **settings.objective.to_dict(),
+        "trial": best.number,
+        "value": best.value,
+        "params": best.params,
+    }
+    if holdout and "study" in holdout:
+        g = holdout["study"]["gain_DS"]
+        objective["holdout_gain_over_base"] = {
+            "trajectories": holdout["study"]["trajectories"],
+            "seed": holdout["study"]["seed"],
+            "agreement": g["agreement"],
+            "success": g["success"],
+        }
+    return {
+        "schema": BEST_SCHEMA,
+        "arbitration": settings.arbitration(best.params),
+        "objective": objective,
+        "note": (
+            f"written by dsteleop tune into {out}; use it with "
+            f"dsteleop run|serve|sim --config {out / 'best.json'}"
+        ),
+    }
+
+
+def _fmt(v: Any, digits: int = 3) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "-"
+    if isinstance(v, int):
+        return str(v)
+    return f"{v:.{digits}g}" if abs(float(v)) >= 1000 else f"{float(v):.{digits}f}"
+
+
+def _p(v: Any) -> str:
+    """A p-value: two decimals, or one significant digit below 0.01."""
+    if v is None or not math.isfinite(float(v)):
+        return "-"
+    if v == 0:
+        return "< 1e-300"  # below what a double holds
+    return f"{v:.2f}" if v >= 0.01 else f"{v:.1g}"
+
+
+def _ci(d: Mapping[str, Any], digits: int = 3) -> str:
+    lo, hi = d["ci95"]
+    return f"{_fmt(d['mean'], digits)} [{_fmt(lo, digits)}, {_fmt(hi, digits)}]"
+
+
+def power(settings: TuneSettings, recs: Sequence[TrialRecord]) -> dict[str, Any]:
+    """The tuning batch's resolution: the median over complete trials of the 95 % interval
+    half-widths of DS's agreement and cosine distance and of its success rate."""
+    done = [r for r in recs if r.state == "COMPLETE"]
+    if settings.batch is None or not done:
+        return {}
+
+    def med(name: str) -> float | None:
+        xs = [r.metrics.get(name, math.nan) for r in done]
+        xs = [x for x in xs if math.isfinite(x)]
+        return statistics.median(xs) if xs else None
+
+    lo, hi = med("study.DS.success_ci_low"), med("study.DS.success_ci_high")
+    return {
+        "trajectories": settings.batch.trajectories,
+        "agreement_ci_half": med("study.DS.agreement_ci_half"),
+        "cosine_distance_ci_half": med("study.DS.cosine_distance_ci_half"),
+        "success_ci_half": None if lo is None or hi is None else (hi - lo) / 2.0,
+    }
+
+
+def markdown(summary: Mapping[str, Any]) -> str:
+    """summary.md from summary.json's object."""
+    st = summary["settings"]
+    lines = [f"# dsteleop tune: {summary['out']}", ""]
+    lines += ["## What was searched", ""]
+    lines.append(
+        f"{summary['trials']['finished']} trials ({summary['trials']['complete']} complete, "
+        f"{summary['trials']['failed']} failed), sampler `{st['sampler']}` with seed "
+        f"{st['seed']}"
+        + (f", {st['grid_points']} values per range" if st["sampler"] == "grid" else "")
+        + "; trials ran as Ray tasks on "
+        + (
+            "a local cluster"
+            if summary["cluster"]["cluster"] == "local"
+            else f"the cluster at {summary['cluster']['cluster']}"
+        )
+        + f" ({summary['cluster']['cpus']} CPUs)."
+    )
+    lines.append("")
+    lines += ["| parameter | searched over | base value |", "| --- | --- | --- |"]
+    for spec in st["space"]:
+        name, _, rng = spec.partition("=")
+        lines.append(f"| `{name}` | `{rng}` | {_fmt(st['base'][name], 4)} |")
+    lines.append("")
+    src = []
+    if st["trajectories"] is not None:
+        src.append(
+            f"the closed-loop study (docs/sim.md): trajectories 0-{st['trajectories'] - 1} of "
+            f"seed {st['study_seed']}, the same for every trial, S and DS paired"
+        )
+    if st["sessions"]:
+        src.append(
+            f"{len(st['sessions'])} recorded session(s) replayed headless in S and DS with a "
+            "fresh simulated robot: " + ", ".join(f"`{Path(p).name}`" for p in st["sessions"])
+        )
+    lines.append("Each trial evaluated one configuration on " + "; and ".join(src) + ".")
+    if summary.get("base_is_default"):
+        lines.append("The base configuration is the default one (docs/METHOD.md §6).")
+    else:
+        lines.append("The base configuration came from `--config`/`--param` (summary.json).")
+    lines += ["", "## The objective", "", summary["objective"]["statement"] + ".", ""]
+    best = summary["best"]
+    lines += ["## The best configuration", ""]
+    if best is None:
+        lines += [
+            "No complete trial met the constraint, so there is no best configuration and no "
+            "best.json.",
+            "",
+        ]
+    else:
+        lines.append(
+            f"Trial {best['number']}: objective {_fmt(best['value'], 4)} on the tuning data "
+            "(optimistic: the best of all trials on the same data; the held-out evaluation "
+            "below is not). `best.json` holds the full configuration:"
+        )
+        lines += ["", "| parameter | best | base |", "| --- | --- | --- |"]
+        for name, v in best["params"].items():
+            lines.append(f"| `{name}` | {_fmt(v, 4)} | {_fmt(st['base'][name], 4)} |")
+        lines += ["", "On the tuning data:", ""]
+        lines += _mode_table(best["metrics"], summary["objective"]["sources"])
+    lines += _holdout_md(summary.get("holdout"))
+    pw = summary.get("power") or {}
+    if pw:
+        lines += [
+            "",
+            "## Resolution of a trial",
+            "",
+            f"A trial scores DS on {pw['trajectories']} trajectories: the median 95 % "
+            f"interval half-width over trials is +-{_fmt(pw['agreement_ci_half'])} for the "
+            f"ratio of agreement, +-{_fmt(pw['cosine_distance_ci_half'])} for the cosine "
+            f"distance and +-{_fmt(pw['success_ci_half'])} for the success rate. Trials share "
+            "their trajectories, so differences between configurations are paired and finer "
+            "than these intervals; a difference much smaller than them is still within what "
+            "a different batch of trajectories could change.",
+        ]
+    failed = summary["trials"]["errors"]
+    if failed:
+        lines += ["", "## Failed trials", "", "| error | trials |", "| --- | --- |"]
+        for err, numbers in failed.items():
+            lines.append(f"| {err} | {', '.join(str(n) for n in numbers)} |")
+    t = summary["timing"]
+    lines += [
+        "",
+        "## Time",
+        "",
+        f"{_fmt(t['wall_s'], 1)} s in all ({_fmt(t['trials_wall_s'], 1)} s for the "
+        f"{t['trials_run']} trials of this run: {_fmt(t['trials_per_minute'], 2)} trials per "
+        f"minute; cluster start {_fmt(t['cluster_start_s'], 1)} s).",
+        "",
+        "Files: " + ", ".join(f"`{f}`" for f in summary["files"]),
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def _mode_table(metrics: Mapping[str, float], sources: Sequence[str]) -> list[str]:
+    rows = ["| source | mode | " + " | ".join(LABELS[m] for m in MODE_METRICS) + " |"]
+    rows.append("| --- | --- |" + " --- |" * len(MODE_METRICS))
+    for s in sources:
+        for mode in ("S", "DS"):
+            vals = [_fmt(metrics.get(f"{s}.{mode}.{m}")) for m in MODE_METRICS]
+            rows.append(f"| {s} | {mode} | " + " | ".join(vals) + " |")
+    return rows
+
+
+def _holdout_md(h: Mapping[str, Any] | None) -> list[str]:
+    if not h:
+        return [
+            "",
+            "## Held-out evaluation",
+            "",
+            "None was run (no best configuration, or `--holdout-trajectories 0`).",
+        ]
+    out = ["", "## Held-out evaluation", ""]
+    if "error" in h:
+        out.append(f"It could not run: {h['error']}")
+    if "study" in h:
+        s = h["study"]
+        seen = (
+            f"the tuning used seed {s['tuning_seed']}, so none of them was seen while tuning"
+            if s["tuning_seed"] is not None
+            else "the study was not an objective of this tuning: an independent check"
+        )
+        out.append(
+            f"The base and the best configuration on {s['trajectories']} fresh trajectories of "
+            f"the closed-loop study (seed {s['seed']}; {seen}), S and DS paired; 95 % intervals:"
+        )
+        out += [
+            "",
+            "| configuration | mode | success | ratio of agreement | cosine distance | time [s] |",
+            "| --- | --- | --- | --- | --- | --- |",
+        ]
+        for name in ("base", "best"):
+            for mode in ("S", "DS"):
+                m = s[name][mode]
+                out.append(
+                    f"| {name} | {mode} | {_fmt(m['success'])} [{_fmt(m['success_ci_low'])}, "
+                    f"{_fmt(m['success_ci_high'])}] | {_fmt(m['agreement'])} "
+                    f"+- {_fmt(m['agreement_ci_half'])} | {_fmt(m['cosine_distance'])} "
+                    f"+- {_fmt(m['cosine_distance_ci_half'])} | {_fmt(m['time_s'], 2)} |"
+                )
+        g = s["gain_DS"]
+        out += [
+            "",
+            "Gain of the best configuration's DS over the base's DS (mean paired difference "
+            "over trajectories, 95 % interval, paired t-test p):",
+            "",
+            "| metric | best - base | p |",
+            "| --- | --- | --- |",
+            f"| success (share) | {_ci(g['success'])} | {_p(g['success']['p_value'])} |",
+            f"| ratio of agreement | {_ci(g['agreement'])} | {_p(g['agreement']['p_value'])} |",
+            f"| cosine distance | {_ci(g['cosine_distance'])} | "
+            f"{_p(g['cosine_distance']['p_value'])} |",
+            f"| time (ratio of geometric means) | {_ci(g['time_ratio'])} | |",
+        ]
+        c = s["tuned_DS_vs_S"]
+        out += [
+            "",
+            f"The constraint on the held-out trajectories: the best configuration's DS "
+            f"succeeded {c['successes_DS']} times, its S {c['successes_S']} times of "
+            f"{c['n']} ({'met' if c['constraint_met'] else 'NOT met'}; N-1 chi-squared p = "
+            f"{_p(c['success_n1_chi2_p'])}).",
+        ]
+    if "sessions" in h:
+        ss = h["sessions"]
+        out += ["", f"Held-out sessions ({ss['count']}):", ""]
+        for name in ("base", "best"):
+            out.append(f"{name}:")
+            out.append("")
+            out += _mode_table(ss[name], ["sessions"])
+            out.append("")
+    elif h.get("sessions_note"):
+        out += ["", h["sessions_note"]]
+    return out

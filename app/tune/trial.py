@@ -1,0 +1,181 @@
+"""The trial functions of `dsteleop tune`: plain Python, no Ray, no Optuna.
+
+A trial evaluates one arbitration configuration, S and DS paired, on its sources
+(app/tune/objective.py). Each function here is one unit of work (one task on a cluster) and
+takes only picklable values, so the same function runs in this process, in a process pool or
+as a Ray task:
+
+    study_task     the tuning batch of the closed-loop study (`app.study.core.run_chunk`,
+                   S and DS of every trajectory in one batch) -> flat metrics
+    study_chunk    some trajectories of a batch -> the per-trajectory results (`ChunkResult`;
+                   the held-out evaluation merges them)
+    session_task   one headless replay of one session in one mode (`app.replay.core`)
+                   -> that run's summary
+
+A session reaches a worker as its path (a folder every worker can read) or as its files'
+bytes (`pack_session`; on a cluster, through the object store), unpacked there into a
+temporary folder.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tempfile
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from dsteleop.app.study.core import ChunkResult, SimConfig, headline, run_chunk
+from dsteleop.app.tune.objective import MODE_METRICS, key
+from dsteleop.arbitration import ArbitrationConfig, Mode
+from dsteleop.errors import InputError
+
+#: The files of a session a replay reads (no video: replays do not re-track).
+SESSION_FILES: tuple[str, ...] = ("meta.json", "ticks.jsonl")
+PAIRED: tuple[Mode, ...] = (Mode.S, Mode.DS)
+
+#: A session as a worker gets it: a path, or (name, {file name: bytes}).
+SessionRef = str | tuple[str, dict[str, bytes]]
+
+
+@dataclass(frozen=True)
+class StudyBatch:
+    """Trajectories of the closed-loop study that a configuration is scored on.
+
+    Attributes:
+        trajectories: how many: indices 0 .. trajectories - 1.
+        seed: the study's master seed; trajectory n is seeded by (seed, n) alone.
+    """
+
+    trajectories: int
+    seed: int
+
+    def config(self, arbitration: ArbitrationConfig) -> SimConfig:
+        """The study of this batch under `arbitration`, S and DS, no paths kept."""
+        return SimConfig(
+            trajectories=self.trajectories,
+            seed=self.seed,
+            modes=PAIRED,
+            max_paths=0,
+            arbitration=arbitration,
+        )
+
+
+def study_chunk(
+    batch: StudyBatch, arbitration: Mapping[str, Any], indices: Sequence[int]
+) -> ChunkResult:
+    """Trajectories `indices` of `batch` under the configuration `arbitration` (a dict of
+    ArbitrationConfig fields; an invalid one raises ConfigError), S and DS in one batch."""
+    cfg = batch.config(ArbitrationConfig.from_dict(dict(arbitration)))
+    return run_chunk(cfg, list(indices))
+
+
+def study_task(batch: StudyBatch, arbitration: Mapping[str, Any]) -> dict[str, float]:
+    """One trial on the study: every trajectory of `batch`, S and DS.
+
+    Returns:
+        `study.<MODE>.<metric>` for each of `app.study.core.headline`'s keys, and
+        `study.seconds`, the time this took [s].
+    """
+    t0 = time.perf_counter()
+    chunk = study_chunk(batch, arbitration, range(batch.trajectories))
+    out: dict[str, float] = {}
+    for mode in PAIRED:
+        for name, v in headline(chunk.modes[mode.value]).items():
+            out[key("study", mode.value, name)] = v
+    out["study.seconds"] = time.perf_counter() - t0
+    return out
+
+
+def pack_session(folder: Path) -> tuple[str, dict[str, bytes]]:
+    """A session's name and the bytes of its files (`SESSION_FILES`), to ship to workers
+    that cannot read its folder."""
+    files = {}
+    for name in SESSION_FILES:
+        p = Path(folder) / name
+        if p.is_file():
+            try:
+                files[name] = p.read_bytes()
+            except OSError as exc:
+                raise InputError(f"{p}: unreadable ({exc.strerror})") from None
+    return Path(folder).name, files
+
+
+def session_task(session: SessionRef, mode: str, arbitration: Mapping[str, Any]) -> dict[str, Any]:
+    """One replay: `session`'s recorded hand through a fresh loop and a fresh PyBullet robot
+    in `mode` under the configuration `arbitration` (as `dsteleop replay --robot simulated
+    --config`).
+
+    Returns:
+        the run's summary (`app.replay.core.session_summary`: name, duration_s, modes.<MODE>
+        with success, time_s, cosine_distance, agreement, ...) and `seconds` [s].
+    """
+    t0 = time.perf_counter()
+    config = ArbitrationConfig.from_dict(dict(arbitration))
+    if isinstance(session, str):
+        summary = _replay(Path(session), Mode.parse(mode), config)
+    else:
+        name, files = session
+        with tempfile.TemporaryDirectory(prefix="dsteleop-session-") as tmp:
+            folder = Path(tmp) / name
+            folder.mkdir()
+            for fname, data in files.items():
+                (folder / fname).write_bytes(data)
+            summary = _replay(folder, Mode.parse(mode), config)
+    summary["seconds"] = time.perf_counter() - t0
+    return summary
+
+
+def _replay(folder: Path, mode: Mode, config: ArbitrationConfig) -> dict[str, Any]:
+    from dsteleop.app.replay import core
+    from dsteleop.app.session.reader import read_session
+
+    session = read_session(folder)
+    loop = {**session.meta.get("loop", {}), "arbitration": config.to_dict()}
+    session = dataclasses.replace(session, meta={**session.meta, "loop": loop})
+    trace = core.replay_session(session, mode, robot="simulated")
+    return core.session_summary(session.name, trace.recorded_s, [trace])
+
+
+def sessions_metrics(runs: Sequence[Mapping[str, Any]]) -> dict[str, float]:
+    """The sessions' metrics of one trial from its replays (`session_task` results, any
+    order): per mode, over sessions, as `dsteleop replay` aggregates them.
+
+    Returns:
+        `sessions.<MODE>.<metric>` for success (Laplace), successes, n, agreement,
+        cosine_distance (means over sessions) and time_s (geometric mean [s]), and
+        `sessions.seconds`, the replays' summed time [s].
+    """
+    from dsteleop.app.replay.core import aggregate
+
+    by_name: dict[str, dict[str, Any]] = {}
+    for run in runs:
+        entry = by_name.setdefault(
+            run["name"], {"name": run["name"], "duration_s": run["duration_s"], "modes": {}}
+        )
+        entry["modes"].update(run["modes"])
+    sessions = [by_name[n] for n in sorted(by_name)]
+    agg, _ = aggregate(sessions, [m.value for m in PAIRED])
+    out: dict[str, float] = {}
+    for mode in PAIRED:
+        a = agg[mode.value]
+        sr, gm = a["success_rate"], a["time_s"]
+        values = {
+            "success": sr["laplace"] if sr else math.nan,
+            "successes": float(sr["successes"]) if sr else 0.0,
+            "n": float(a["n"]),
+            "agreement": _num(a["agreement"]),
+            "cosine_distance": _num(a["cosine_distance"]),
+            "time_s": _num(gm["mean"]) if gm else math.nan,
+        }
+        for name in ("successes", "n", *MODE_METRICS):
+            out[key("sessions", mode.value, name)] = values[name]
+    out["sessions.seconds"] = float(sum(r.get("seconds", 0.0) for r in runs))
+    return out
+
+
+def _num(x: Any) -> float:
+    return math.nan if x is None else float(x)
