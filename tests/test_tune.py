@@ -363,7 +363,7 @@ def check_best_json_round_trips_through_sim(out: Path, tmp_path: Path) -> None:
     assert used == best["arbitration"]
     # run and serve read it through the same loop options.
     parser = argparse.ArgumentParser()
-    add_loop_options(parser, "demo")
+    add_loop_options(parser, "demo", "record a session into DIR")
     loop = loop_options(parser.parse_args(["--config", str(out / "best.json")])).loop
     assert loop.arbitration.to_dict() == best["arbitration"]
     assert not math.isnan(best["objective"]["value"])
