@@ -10,6 +10,7 @@ import json
 import math
 import os
 import re
+import shutil
 import socket
 import subprocess
 import sys
@@ -263,15 +264,26 @@ def test_bad_input_in_a_subprocess_has_no_traceback(tmp_path: Path) -> None:
 # --- the command on a real local Ray cluster -------------------------------------------------
 
 
-def tune(out: Path, home: Path, *args: str) -> subprocess.CompletedProcess[str]:
-    """`dsteleop tune` in a subprocess with its own HOME (to see what it writes there)."""
+def tune(
+    out: Path, home: Path, *args: str, trace: Path | None = None
+) -> subprocess.CompletedProcess[str]:
+    """`dsteleop tune` in a subprocess with its own HOME (to see what it writes there); with
+    `trace`, under strace, every process's connect() calls logged there."""
     home.mkdir(exist_ok=True)
     env = {**os.environ, "HOME": str(home)}
+    strace = ["strace", "-f", "-qq", "-e", "trace=connect", "-o", str(trace)] if trace else []
     return subprocess.run(
-        [sys.executable, "-m", "dsteleop.app.cli.main", "tune", "--no-progress",
+        [*strace, sys.executable, "-m", "dsteleop.app.cli.main", "tune", "--no-progress",
          "--out", str(out), *args],
         capture_output=True, text=True, timeout=600, check=False, env=env,
     )  # fmt: skip
+
+
+def remote_addresses(trace: Path) -> set[str]:
+    """The IP addresses that the traced processes connected to, other than loopback."""
+    found = set(re.findall(r'inet_addr\("([0-9.]+)"\)', trace.read_text()))
+    found |= set(re.findall(r'inet_pton\(AF_INET6, "([^"]+)"', trace.read_text()))
+    return {a for a in found if a not in ("127.0.0.1", "::1", "::ffff:127.0.0.1")}
 
 
 def read_trials(out: Path) -> list[dict[str, str]]:
@@ -291,10 +303,16 @@ def test_a_study_on_a_local_ray_cluster_records_failures_and_resumes(tmp_path: P
     common = ["--sampler", "grid", "--space", "p=0.8,4", "--space", "window=3,5", "--seed", "1",
               "--no-constraint", "--trajectories", "3", "--holdout-trajectories", "8",
               "--workers", "2"]  # fmt: skip
+    # Traced where strace exists: the local cluster connects to nothing but this machine.
+    trace = tmp_path / "connect.trace" if shutil.which("strace") else None
     first = tune(
-        out, home, "--objective", "both", "--sessions", str(SESSION), "--trials", "2", *common
-    )
+        out, home, "--objective", "both", "--sessions", str(SESSION), "--trials", "2", *common,
+        trace=trace,
+    )  # fmt: skip
     assert first.returncode == 0, first.stderr
+    if trace is not None:
+        assert "connect(" in trace.read_text()  # the trace saw the cluster's connections
+        assert remote_addresses(trace) == set()
     # Nothing a user must read: only log lines of the command (and of matplotlib, which logs
     # building its font cache in a new home folder), no output of Ray; and Ray writes nothing
     # to the home folder (its token lives in the environment).

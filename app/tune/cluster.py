@@ -4,8 +4,10 @@ and its benchmark only).
     address None       `ray.init()` starts a local cluster on this machine: `workers` CPUs
                        (default: every core), bound to the loopback interface, with a
                        per-run authentication token in the environment (nothing written to
-                       the home folder), no dashboard, usage statistics off, the workers'
-                       output kept in Ray's log folder (/tmp/ray) instead of the terminal
+                       the home folder), no dashboard, usage statistics off, no probe of
+                       cloud metadata services (`_cluster_home`), the workers' output kept
+                       in Ray's log folder (/tmp/ray) instead of the terminal: it connects
+                       to nothing but 127.0.0.1
     "auto"             the cluster this machine is a node of (`ray start` ran here)
     "ray://HOST:PORT"  a remote cluster through Ray Client (its head's client port, 10001
                        by default)
@@ -19,12 +21,15 @@ tried (5 s), so an unreachable address is one line instead of Ray's own minute o
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import secrets
 import socket
+import tempfile
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
 from typing import Any
 
 from dsteleop.app.tune.driver import TaskError, describe_error
@@ -127,17 +132,45 @@ class RayExecutor:
             if address is not None and address.startswith("ray://"):
                 # Ray Client accepts fewer options.
                 kwargs = {"logging_level": logging.ERROR, "runtime_env": kwargs["runtime_env"]}
+        self._home: tempfile.TemporaryDirectory[str] | None = None
         try:
-            with warnings.catch_warnings():
+            with warnings.catch_warnings(), self._cluster_home():
                 warnings.simplefilter("ignore")
                 ray.init(address=address, **kwargs)
         except (ConnectionError, RuntimeError, TimeoutError, ValueError, SystemExit) as exc:
-            if ray.is_initialized():
-                ray.shutdown()
+            self.close()
             where = "a local Ray cluster" if self.local else f"the Ray cluster at {address}"
             raise InputError(f"cannot start or join {where}: {describe_error(exc)}") from None
         self.capacity = max(1, int(ray.cluster_resources().get("CPU", 1)))  # type: ignore[no-untyped-call]
         log.debug("ray: %s, %d CPUs", address or "local cluster", self.capacity)
+
+    @contextlib.contextmanager
+    def _cluster_home(self) -> Iterator[None]:
+        """While a local cluster starts (its processes inherit the environment), HOME is a
+        folder of its own holding `ray_bootstrap_config.yaml` for a local provider.
+
+        Ray 2.60 starts a reduced dashboard even without one, whose usage-statistics module
+        looks for that file in the home folder and, when it is missing, asks three cloud
+        metadata services which cloud it runs on (169.254.169.254 and a DNS look-up of
+        metadata.google.internal) - even with usage statistics off. With the file it reads
+        the provider from it and contacts nothing.
+        """
+        if not self.local:
+            yield
+            return
+        self._home = tempfile.TemporaryDirectory(prefix="dsteleop-ray-")
+        (Path(self._home.name) / "ray_bootstrap_config.yaml").write_text(
+            "# written by dsteleop tune for its local Ray cluster\nprovider:\n  type: local\n"
+        )
+        before = os.environ.get("HOME")
+        os.environ["HOME"] = self._home.name
+        try:
+            yield
+        finally:
+            if before is None:
+                del os.environ["HOME"]
+            else:
+                os.environ["HOME"] = before
 
     def __enter__(self) -> RayExecutor:
         return self
@@ -186,6 +219,9 @@ class RayExecutor:
     def close(self) -> None:
         if self._ray.is_initialized():
             self._ray.shutdown()
+        if self._home is not None:
+            self._home.cleanup()
+            self._home = None
 
 
 def _quiet_environment(local: bool) -> None:

@@ -141,8 +141,8 @@ def write_heatmap(settings: TuneSettings, recs: Sequence[TrialRecord], out: Path
             for j in range(len(xs)):
                 if np.isfinite(grid[i, j]):
                     ax.text(j, i, f"{grid[i, j]:.2g}", ha="center", va="center", fontsize=7)
-        ax.set_xticks(range(len(xs)), [f"{v:g}" for v in xs], fontsize=7)
-        ax.set_yticks(range(len(ys)), [f"{v:g}" for v in ys], fontsize=7)
+        ax.set_xticks(range(len(xs)), [f"{v:.3g}" for v in xs], fontsize=7)
+        ax.set_yticks(range(len(ys)), [f"{v:.3g}" for v in ys], fontsize=7)
         ax.set_xlabel(dx.name)
         ax.set_ylabel(dy.name)
         ax.set_title(f"{source}: {LABELS[metric]}, DS - S", fontsize=9)
