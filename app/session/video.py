@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import queue
 import threading
 from fractions import Fraction
@@ -44,6 +45,20 @@ MP4_OPTIONS = {
     "movflags": "frag_keyframe+empty_moov+default_base_moof+frag_every_frame",
     "flush_packets": "1",
 }
+
+
+#: Niceness added to the video writer's thread: encoding is background work.
+WRITER_NICENESS = 10
+
+
+def lower_thread_priority(niceness: int = WRITER_NICENESS) -> None:
+    """Lower the calling thread's CPU priority by `niceness` (Linux: per thread; elsewhere,
+    or when not allowed, nothing happens)."""
+    try:
+        tid = threading.get_native_id()
+        os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + niceness)
+    except (AttributeError, OSError):
+        pass
 
 
 class Mp4Writer:
@@ -78,7 +93,12 @@ class Mp4Writer:
             raise InputError(f"cannot write a video at {self.path}: {exc}") from exc
         if "libx264" in av.codecs_available:
             stream: Any = self._out.add_stream("libx264", rate=rate)
-            stream.options = {"preset": "ultrafast", "tune": "zerolatency", "crf": str(crf)}
+            stream.options = {
+                "preset": "ultrafast",
+                "tune": "zerolatency",
+                "crf": str(crf),
+                "threads": "1",  # one core's slice at 30 fps; more threads only compete
+            }
         else:
             stream = self._out.add_stream("mpeg4", rate=rate)
             stream.bit_rate = 4_000_000
@@ -178,7 +198,9 @@ class FrameRecorder:
         """The writer thread: frames in order into the video, and each one's index line
         once the frame is in the file. The MP4 muxer writes a frame's fragment when the next
         frame arrives (that one's time closes it), so a line follows one frame behind; the
-        last is written after the video is closed."""
+        last is written after the video is closed. The thread (and the encoder it runs)
+        yields the CPU to the control loop: it runs at a lower priority (niceness +10)."""
+        lower_thread_priority()
         writer: Mp4Writer | None = None
         index: IO[str] | None = None
         pending: str | None = None
