@@ -48,7 +48,10 @@ sync() {
     ensure_uv
     local py
     py=$(find_python) || die "Python 3.10, 3.11 or 3.12 is needed"
-    "$TOOLS/bin/uv" sync --locked --python "$(command -v "$py")" --quiet
+    # --compile-bytecode: every command starts without compiling its libraries again where
+    # Python cannot cache bytecode (PYTHONDONTWRITEBYTECODE=1, as containers often set; ~3 s
+    # of each `dsteleop sim` run here went to compiling matplotlib and scipy).
+    "$TOOLS/bin/uv" sync --locked --compile-bytecode --python "$(command -v "$py")" --quiet
 }
 
 cmd="${1:-}"
