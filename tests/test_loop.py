@@ -371,3 +371,47 @@ def test_the_loop_logic_runs_without_pybullet_or_a_camera() -> None:
     )
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "[]"
+
+
+def _lowered_threads_after_a_real_time_run() -> tuple[int, int, int]:
+    """(loop thread's niceness, a worker thread's niceness after two real-time ticks, the
+    worker's after a second run): in a subprocess, so that the test process keeps its own."""
+    import os
+    import threading
+
+    from dsteleop.app.loop.timing import MonotonicClock
+
+    release = threading.Event()
+    ids: list[int] = []
+
+    def wait() -> None:
+        ids.append(threading.get_native_id())
+        release.wait(30)
+
+    worker = threading.Thread(target=wait)
+    worker.start()
+    while not ids:
+        pass
+    loop = TeleopLoop(LoopConfig(mode=Mode.MANUAL), ScriptedHand(lambda t: START),
+                      FakePlant(start=START), clock=MonotonicClock())  # fmt: skip
+    loop.run(max_ticks=2)
+    after_one = os.getpriority(os.PRIO_PROCESS, ids[0])
+    loop.run(max_ticks=2)
+    after_two = os.getpriority(os.PRIO_PROCESS, ids[0])
+    release.set()
+    worker.join()
+    loop.close()
+    return os.getpriority(os.PRIO_PROCESS, threading.get_native_id()), after_one, after_two
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="per-thread niceness: Linux")
+def test_a_real_time_run_puts_every_other_thread_below_the_loop() -> None:
+    code = "from tests import test_loop as t\nprint(*t._lowered_threads_after_a_real_time_run())\n"
+    repo = Path(__file__).resolve().parents[1]
+    r = subprocess.run(
+        [sys.executable, "-c", code], cwd=repo, capture_output=True, text=True, timeout=120
+    )
+    assert r.returncode == 0, r.stderr
+    loop_nice, after_one, after_two = map(int, r.stdout.split())
+    assert after_one == loop_nice + 5  # below the loop by LOOP_LEAD_NICENESS
+    assert after_two == after_one  # a second run does not push it further down

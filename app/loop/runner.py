@@ -36,7 +36,7 @@ from dsteleop.app.loop import tick
 from dsteleop.app.loop.broadcast import Broadcaster
 from dsteleop.app.loop.config import LoopConfig
 from dsteleop.app.loop.controls import Controls, Requests
-from dsteleop.app.loop.timing import MonotonicClock, RateClock
+from dsteleop.app.loop.timing import MonotonicClock, RateClock, put_this_thread_first
 from dsteleop.app.ports import Clock, HandInput, HumanInput, Observer, Plant
 from dsteleop.app.session.episodes import EpisodeSplitter
 from dsteleop.app.session.schema import RecordingStatus, TickRecord, encode_event
@@ -386,12 +386,16 @@ class TeleopLoop:
         Everything built before the first tick (the models, the robot, the view) is moved
         out of the garbage collector's sight (`gc.freeze`): a full collection then scans only
         what the session allocates, instead of pausing every thread for tens of milliseconds
-        over the whole heap (measured: up to 26 ms, and a missed tick).
+        over the whole heap (measured: up to 26 ms, and a missed tick). Every other thread of
+        the process runs a few niceness steps below the loop's (`timing.put_this_thread_first`:
+        its own capture, tracking, viewer and recorder threads would otherwise delay a due tick
+        by several milliseconds on two cores).
         """
         n = 0
         gc.collect()
         gc.freeze()
         self.hand.start()
+        put_this_thread_first()
         self.rate.restart()  # the schedule starts now, not where an earlier run left it
         switch = sys.getswitchinterval()
         sys.setswitchinterval(0.0005)

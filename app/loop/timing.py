@@ -54,6 +54,43 @@ def raise_priority(niceness: int = -10) -> bool:
     return True
 
 
+#: How far below the loop thread every other thread of the process runs (niceness steps).
+LOOP_LEAD_NICENESS = 5
+
+
+def put_this_thread_first(lead: int = LOOP_LEAD_NICENESS) -> int:
+    """Make every other thread of this process at least `lead` niceness steps less urgent
+    than the calling thread (the loop's). Returns how many threads were lowered.
+
+    The loop shares the cores with its own capture, tracking (MediaPipe's threads among
+    them), viewer and recorder threads, all at the process's niceness: a tick that falls due
+    while they run waits for the scheduler to get round to it. Measured on a 2-core Xeon
+    with MediaPipe on a real video, 60 s runs alternating with and without, 7 of each:
+    start jitter p99 median 3.9 ms (2.1-13.6) against 13.8 ms (7.3-15.0), frame-to-command
+    latency p50 33 against 40 ms, overruns 0 against 3 (`dsteleop bench --only loop`).
+    Linux only (niceness is per thread there; /proc/self/task lists the threads); lowering a
+    thread needs no privilege. Idempotent: a thread already that low is left as it is; a
+    thread started later inherits its creator's niceness.
+    """
+    tasks = "/proc/self/task"
+    if not os.path.isdir(tasks):
+        return 0
+    me = threading.get_native_id()
+    target = os.getpriority(os.PRIO_PROCESS, me) + lead
+    lowered = 0
+    for name in os.listdir(tasks):
+        tid = int(name)
+        if tid == me:
+            continue
+        try:
+            if os.getpriority(os.PRIO_PROCESS, tid) < target:
+                os.setpriority(os.PRIO_PROCESS, tid, target)
+                lowered += 1
+        except OSError:  # the thread ended meanwhile, or the OS refused
+            continue
+    return lowered
+
+
 class MonotonicClock:
     """`time.monotonic()`; sleeps with `time.sleep`, then spins the last 0.5 ms."""
 
