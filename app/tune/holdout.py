@@ -50,21 +50,34 @@ def study_holdout(
         for name, cfg in configs.items()
         for idx in chunks
     }
-    parts: dict[str, list[Any]] = {name: [] for name in configs}
+    parts = _gather(executor, handles, configs, "held-out evaluation: a task failed", on_task)
+    return {
+        name: merge(batch.config(ArbitrationConfig.from_dict(dict(cfg))), parts[name])
+        for name, cfg in configs.items()
+    }
+
+
+def _gather(
+    executor: Executor,
+    handles: Mapping[Any, str],
+    names: Mapping[str, object],
+    failed: str,
+    on_task: Callable[[], None] | None,
+) -> dict[str, list[Any]]:
+    """The results of the tasks `handles` (task -> configuration name), grouped by name in
+    the order they arrive; a failed task ends the evaluation (HoldoutError: `failed: why`)."""
+    out: dict[str, list[Any]] = {name: [] for name in names}
     waiting = list(handles)
     while waiting:
         for h in executor.ready(waiting, timeout_s=0.5):
             waiting.remove(h)
             try:
-                parts[handles[h]].append(executor.result(h))
+                out[handles[h]].append(executor.result(h))
             except TaskError as exc:
-                raise HoldoutError(f"held-out evaluation: a task failed: {exc}") from None
+                raise HoldoutError(f"{failed}: {exc}") from None
             if on_task is not None:
                 on_task()
-    return {
-        name: merge(batch.config(ArbitrationConfig.from_dict(dict(cfg))), parts[name])
-        for name, cfg in configs.items()
-    }
+    return out
 
 
 def _chunks(n: int, capacity: int) -> list[list[int]]:
@@ -143,17 +156,7 @@ def sessions_holdout(
         for ref in refs
         for mode in ("S", "DS")
     }
-    runs: dict[str, list[Any]] = {name: [] for name in configs}
-    waiting = list(handles)
-    while waiting:
-        for h in executor.ready(waiting, timeout_s=0.5):
-            waiting.remove(h)
-            try:
-                runs[handles[h]].append(executor.result(h))
-            except TaskError as exc:
-                raise HoldoutError(f"held-out sessions: a replay failed: {exc}") from None
-            if on_task is not None:
-                on_task()
+    runs = _gather(executor, handles, configs, "held-out sessions: a replay failed", on_task)
     return {name: sessions_metrics(r) for name, r in runs.items()}
 
 
