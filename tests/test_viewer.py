@@ -567,17 +567,14 @@ def test_serve_rejects_bad_arguments() -> None:
         assert res.returncode == 2 and "Traceback" not in res.stderr, args
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
-def test_serve_stops_cleanly_with_a_complete_recording(tmp_path: Path, sig: int) -> None:
-    from dsteleop.app.session.reader import read_session
-
-    port = _free_port()
+def _serve_then_signal(
+    port: int, args: list[str], sig: int, after_s: float
+) -> tuple[int, str, str, list[str]]:
+    """`dsteleop serve ARGS` in a subprocess: once its page's address is printed (or its
+    stderr ends), `after_s` later, the signal `sig`. Returns its exit code, stdout, the rest
+    of its stderr, and the stderr lines read up to the address."""
     proc = subprocess.Popen(
-        [*DSTELEOP, "serve", "--source", "demo", "--port", str(port), "--record", str(tmp_path)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
+        [*DSTELEOP, "serve", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
     try:
         assert proc.stderr is not None
@@ -586,17 +583,28 @@ def test_serve_stops_cleanly_with_a_complete_recording(tmp_path: Path, sig: int)
         while time.monotonic() < deadline:
             line = proc.stderr.readline()
             lines.append(line)
-            if f"open http://127.0.0.1:{port}/" in line or not line:
+            if f"http://127.0.0.1:{port}/" in line or not line:
                 break
-        assert any(f"http://127.0.0.1:{port}/" in ln for ln in lines), "".join(lines)
-        time.sleep(3.0)
+        time.sleep(after_s)
         proc.send_signal(sig)
         out, err = proc.communicate(timeout=30)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    assert proc.returncode == 0, err
+    return proc.returncode, out, err, lines
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_serve_stops_cleanly_with_a_complete_recording(tmp_path: Path, sig: int) -> None:
+    from dsteleop.app.session.reader import read_session
+
+    port = _free_port()
+    args = ["--source", "demo", "--port", str(port), "--record", str(tmp_path)]
+    code, out, err, lines = _serve_then_signal(port, args, sig, after_s=3.0)
+    assert any(f"http://127.0.0.1:{port}/" in ln for ln in lines), "".join(lines)
+    assert code == 0, err
     summary = json.loads(out.strip().splitlines()[-1])
     assert summary["stopped_by"] == signal.Signals(sig).name
     assert summary["timing"]["ticks"] > 30
@@ -616,37 +624,9 @@ def test_serve_takes_the_loop_options_of_run(tmp_path: Path) -> None:
     port = _free_port()
     options = ["--lost-policy", "assist", "--seed", "3", "--rate", "20"]
     options += ["--time-limit", "50", "--reset-after", "2.5", "--mode", "S"]
-    proc = subprocess.Popen(
-        [
-            *DSTELEOP,
-            "serve",
-            "--source",
-            "demo",
-            "--port",
-            str(port),
-            "--record",
-            str(tmp_path),
-            *options,
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        assert proc.stderr is not None
-        deadline = time.monotonic() + 60.0
-        while time.monotonic() < deadline:
-            line = proc.stderr.readline()
-            if f"http://127.0.0.1:{port}/" in line or not line:
-                break
-        time.sleep(2.0)
-        proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    assert proc.returncode == 0, err
+    args = ["--source", "demo", "--port", str(port), "--record", str(tmp_path), *options]
+    code, out, err, _ = _serve_then_signal(port, args, signal.SIGINT, after_s=2.0)
+    assert code == 0, err
     session = read_session(Path(json.loads(out.strip().splitlines()[-1])["recording"]))
     loop = session.meta["loop"]
     assert loop["lost_policy"] == "assist" and loop["rate_hz"] == 20.0
