@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from dsteleop.app.session.episodes import Episode, split
+from dsteleop.app.session.episodes import Episode, episode_records, split
 from dsteleop.app.session.schema import READABLE, SCHEMA, TickRecord, decode
 from dsteleop.app.session.video import FRAMES, VIDEO
 from dsteleop.app.session.writer import META, TICKS
@@ -73,7 +73,7 @@ class Session:
         return dataclasses.replace(
             self,
             meta={**self.meta, "plant": plant},
-            records=self.records[episode.first : episode.last + 1],
+            records=tuple(episode_records(self.records, episode)),
             episode=episode,
         )
 
