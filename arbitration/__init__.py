@@ -1,9 +1,10 @@
-"""Dimension-specific shared-control arbitration: pure numpy, no I/O, no clock.
+"""Dimension-specific shared-control arbitration: numpy and numba, no I/O, no clock.
 
 Everything here takes arrays and frozen dataclasses and returns the same; `dt` is always an
 argument. The maths is stated once, in the docstring of the module that implements it, with
 the paper's equation numbers (docs/METHOD.md gathers them):
 
+    jit          how the maths is compiled (numba, cached on disk)
     se3          poses, rotations, differences, integration: the only SO(3) maths
     policy       U_robot, U_human, eq (2) on the bounded reference
     allocation   eq (3)-(8)
@@ -17,8 +18,9 @@ Conventions (written down once):
     * A dimension vector has 6 + F entries: x, y, z [m], rx, ry, rz [rad] (components in the
       base frame of a rotation vector), then the F fingers.
     * Actions U are velocities: m/s, rad/s (base-frame angular velocity), openness/s.
-    * Public functions accept a leading batch shape on all of their arrays; inside the kernel
-      arrays are dimension-first (`allocation.py`) and in rows form (`se3.py`).
+    * Public functions accept a leading batch shape on all of their arrays. The maths itself
+      is written once, per state and per dimension, in compiled functions (`jit.kernel`)
+      that the one kernel (`arbiters._tick`) runs over every row of a batch.
 """
 
 from dsteleop.arbitration.arbiters import (

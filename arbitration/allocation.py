@@ -1,10 +1,10 @@
 """Eq (3)-(8): who gets how much authority, per dimension. The one implementation.
 
-Arrays are dimension-first, (D, ...), D = 6 + F dimensions (x, y, z [m], rx, ry, rz [rad]
-rotation-vector components in the base frame, then F fingers), with any batch after them:
-the arbitration kernel calls these with rows of M trajectories (`se3` rows form), a batch of
-one in the 30 Hz loop and thousands in the simulation study. (A single (D,) vector is the
-same in either layout.)
+Each equation is one compiled function of one dimension of one state (`jit.kernel`), which
+the arbitration kernel (`arbiters.py`) calls for every row and dimension of a tick. The
+array functions after them apply the same functions to arrays that are dimension-first,
+(D, ...), D = 6 + F dimensions (x, y, z [m], rx, ry, rz [rad] rotation-vector components
+in the base frame, then F fingers), with any batch after them.
 
 Standard controller (S), eq (3), one alpha for every dimension from position only:
 
@@ -45,25 +45,117 @@ Dimension-specific alpha, eq (8): alpha_i = clip((P(R_i) - P(H_i)) * B_i + P(H_i
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import NDArray
-from scipy.special import erfc
 
-from dsteleop.arbitration.se3 import FING, ROT, TRANS, norms_rows
+from dsteleop.arbitration.jit import kernel
+from dsteleop.arbitration.se3 import group_norm
 
 Array = NDArray[np.float64]
 
+# --- compiled: one dimension of one state (the arbitration kernel calls these) -----------
 
-def _col(v: Array, like: Array) -> Array:
-    """A per-dimension vector (D',) shaped to broadcast over the batch axes of `like`."""
-    return v.reshape(v.shape + (1,) * (like.ndim - 1))
+
+@kernel
+def standard_alpha_of(l1_goal_cur: float, l1_goal_start: float, floor_m: float) -> float:
+    """Eq (3) from the L1 position distances goal-current and goal-start [m]."""
+    return math.erfc(l1_goal_cur / max(l1_goal_start, floor_m))
+
+
+@kernel
+def allocation_linear(d_goal_agent: float, d_goal_start: float, floor: float) -> float:
+    """Eq (4): P(A_i) of a translation or finger dimension."""
+    return math.erfc(abs(d_goal_agent) / max(abs(d_goal_start), floor))
+
+
+@kernel
+def allocation_rotation(e: float, kappa: float) -> float:
+    """Eq (5): P(A_i) of a rotation dimension, e the component of log(R_goal R_agent^T)."""
+    return math.exp(kappa * (math.cos(e) - 1.0))
+
+
+@kernel
+def unit_directions_into(d: Array, threshold: Array, out: Array) -> None:
+    """u(a, b) of eq (6) from d = diff(a, b) (6 + F,): each group over its norm, 0 below
+    the group's threshold (`threshold[group start]`)."""
+    D = d.shape[0]
+    for start, stop in ((0, 3), (3, 6), (6, D)):
+        if stop <= start:
+            continue
+        n = group_norm(d, start, stop)
+        ok = n >= threshold[start]
+        for i in range(start, stop):
+            out[i] = d[i] / n if ok else 0.0
+
+
+@kernel
+def speed_change_of(
+    U: float, v_max: float, u_cur_prev: float, u_cur_start: float, history: float
+) -> float:
+    """Eq (6): psi_i from the action, its limit and the unit directions of dimension i."""
+    return U / v_max - u_cur_prev - u_cur_start + history
+
+
+@kernel
+def willingness_of(psi_human: float, psi_robot: float, p: float, q: float, b: float,
+                   floor: float) -> float:  # fmt: skip
+    """Eq (7): B in [0, 1], the beta-prime density at |psi_human| normalised at its mode."""
+    sigma = max(abs(psi_robot), floor) * (b * (q - 1.0) / p)
+    # z = 0 gives B = 0 (p > 1); the floor keeps log finite and exp underflows to exactly 0.
+    z = max(abs(psi_human) / sigma, 1e-300)
+    zm = (p - 1.0) / (q + 1.0)
+    return math.exp((p - 1.0) * math.log(z / zm) - (p + q) * (math.log1p(z) - math.log1p(zm)))
+
+
+@kernel
+def ds_alpha_of(P_robot: float, P_human: float, B: float) -> float:
+    """Eq (8): alpha_i = clip((P(R_i) - P(H_i)) * B_i + P(H_i), 0, 1)."""
+    return min(max((P_robot - P_human) * B + P_human, 0.0), 1.0)
+
+
+# --- the same, over arrays (D, ...): loops of the functions above --------------------------
+
+
+def _flat(*arrays: Array) -> tuple[tuple[int, ...], list[Array]]:
+    """Arrays broadcast to one shape (D, ...), flattened to (D, N), contiguous."""
+    shape = np.broadcast_shapes(*(np.shape(a) for a in arrays))
+    out = [
+        np.array(np.broadcast_to(np.asarray(a, dtype=np.float64), shape), order="C").reshape(
+            shape[0], -1
+        )
+        for a in arrays
+    ]
+    return shape, out
+
+
+@kernel
+def _standard_alpha_rows(d_cur: Array, d_start: Array, floor_m: float) -> Array:
+    out = np.empty(d_cur.shape[1])
+    for n in range(d_cur.shape[1]):
+        num = abs(d_cur[0, n]) + abs(d_cur[1, n]) + abs(d_cur[2, n])
+        den = abs(d_start[0, n]) + abs(d_start[1, n]) + abs(d_start[2, n])
+        out[n] = standard_alpha_of(num, den, floor_m)
+    return out
 
 
 def standard_alpha(p_goal: Array, p_cur: Array, p_start: Array, floor_m: float) -> Array:
     """Eq (3): one alpha per state from the L1 position distances, (3, ...) -> (...)."""
-    num = np.abs(p_goal - p_cur).sum(0)
-    den = np.maximum(np.abs(p_goal - p_start).sum(0), floor_m)
-    return np.asarray(erfc(num / den))
+    shape, (g, c, s) = _flat(p_goal, p_cur, p_start)
+    return _standard_alpha_rows(g - c, g - s, float(floor_m)).reshape(shape[1:])
+
+
+@kernel
+def _allocation_rows(d_agent: Array, d_start: Array, floor: Array, kappa: float) -> Array:
+    out = np.empty_like(d_agent)
+    for i in range(d_agent.shape[0]):
+        for n in range(d_agent.shape[1]):
+            if 3 <= i < 6:
+                out[i, n] = allocation_rotation(d_agent[i, n], kappa)
+            else:
+                out[i, n] = allocation_linear(d_agent[i, n], d_start[i, n], floor[i])
+    return out
 
 
 def expected_allocation(
@@ -77,26 +169,26 @@ def expected_allocation(
         floor: (6 + F,) floors of the denominators (rotation entries unused).
         kappa: von Mises concentration.
     """
-    P = np.empty(np.broadcast_shapes(d_goal_agent.shape, d_goal_start.shape))
-    for g in (TRANS, FING):
-        den = np.maximum(np.abs(d_goal_start[g]), _col(floor[g], d_goal_start))
-        P[g] = erfc(np.abs(d_goal_agent[g]) / den)
-    P[ROT] = np.exp(kappa * (np.cos(d_goal_agent[ROT]) - 1.0))
-    return P
+    shape, (a, s) = _flat(d_goal_agent, d_goal_start)
+    floor_col = np.ascontiguousarray(floor, dtype=np.float64)
+    return _allocation_rows(a, s, floor_col, float(kappa)).reshape(shape)
+
+
+@kernel
+def _unit_directions_rows(d: Array, threshold: Array) -> Array:
+    out = np.empty_like(d)
+    for n in range(d.shape[1]):
+        unit_directions_into(d[:, n], threshold, out[:, n])
+    return out
 
 
 def unit_directions(d: Array, threshold: Array) -> Array:
     """u(a, b) of eq (6) from d = diff(a, b) (6 + F, ...): each group over its norm, 0 below
     the group's threshold (`threshold[group start]`)."""
-    out = np.zeros_like(d)
-    for g in (TRANS, ROT, FING):
-        dg = d[g]
-        if dg.shape[0] == 0:
-            continue
-        n = norms_rows(dg)
-        ok = n >= threshold[g.start]
-        out[g] = np.where(ok, dg / np.where(ok, n, 1.0), 0.0)
-    return out
+    shape, (dd,) = _flat(d)
+    return _unit_directions_rows(dd, np.ascontiguousarray(threshold, dtype=np.float64)).reshape(
+        shape
+    )
 
 
 def expected_speed_change(
@@ -117,25 +209,60 @@ def expected_speed_change(
         still_step: (6 + F,) thresholds of the one-tick difference (speed times dt).
         still_offset: (6 + F,) thresholds of the difference from the start.
     """
-    psi = U / _col(v_max, U) - unit_directions(d_cur_prev, still_step)
-    psi -= unit_directions(d_cur_start, still_offset)
-    if history_term is not None:
-        psi += _col(np.asarray(history_term, dtype=np.float64), U)
-    return psi
+    u_prev = unit_directions(d_cur_prev, still_step)
+    u_start = unit_directions(d_cur_start, still_offset)
+    D = u_prev.shape[0]
+    h = np.zeros(D) if history_term is None else np.asarray(history_term, dtype=np.float64)
+    shape, (Uf, up, us, hf, vf) = _flat(
+        U, u_prev, u_start, h.reshape(D, *([1] * (u_prev.ndim - 1))),
+        np.reshape(v_max, (D, *([1] * (u_prev.ndim - 1)))),
+    )  # fmt: skip
+    return _speed_change_rows(Uf, vf, up, us, hf).reshape(shape)
+
+
+@kernel
+def _speed_change_rows(U: Array, v_max: Array, u_prev: Array, u_start: Array, h: Array) -> Array:
+    out = np.empty_like(U)
+    for i in range(U.shape[0]):
+        for n in range(U.shape[1]):
+            out[i, n] = speed_change_of(U[i, n], v_max[i, n], u_prev[i, n], u_start[i, n], h[i, n])
+    return out
+
+
+@kernel
+def _willingness_rows(
+    psi_h: Array, psi_r: Array, p: float, q: float, b: float, floor: float
+) -> Array:
+    out = np.empty(psi_h.shape)
+    for n in range(psi_h.shape[0]):
+        out[n] = willingness_of(psi_h[n], psi_r[n], p, q, b, floor)
+    return out
 
 
 def willingness(
     psi_human: Array, psi_robot: Array, p: float, q: float, b: float, floor: float
 ) -> Array:
     """Eq (7): B in [0, 1], the beta-prime density at |psi_human| normalised at its mode."""
-    sigma = np.maximum(np.abs(psi_robot), floor) * (b * (q - 1.0) / p)
-    # z = 0 gives B = 0 (p > 1); the floor keeps log finite and exp underflows to exactly 0.
-    z = np.maximum(np.abs(psi_human) / sigma, 1e-300)
-    zm = (p - 1.0) / (q + 1.0)
-    log_b = (p - 1.0) * np.log(z / zm) - (p + q) * (np.log1p(z) - np.log1p(zm))
-    return np.asarray(np.exp(log_b))
+    shape = np.broadcast_shapes(np.shape(psi_human), np.shape(psi_robot))
+    h = np.array(np.broadcast_to(np.asarray(psi_human, dtype=np.float64), shape), order="C")
+    r = np.array(np.broadcast_to(np.asarray(psi_robot, dtype=np.float64), shape), order="C")
+    args = (float(p), float(q), float(b), float(floor))
+    return _willingness_rows(h.reshape(-1), r.reshape(-1), *args).reshape(shape)
+
+
+@kernel
+def _ds_alpha_rows(P_r: Array, P_h: Array, B: Array) -> Array:
+    out = np.empty(P_r.shape)
+    for n in range(P_r.size):
+        out[n] = ds_alpha_of(P_r[n], P_h[n], B[n])
+    return out
 
 
 def ds_alpha(P_robot: Array, P_human: Array, B: Array) -> Array:
     """Eq (8): alpha_i = clip((P(R_i) - P(H_i)) * B_i + P(H_i), 0, 1)."""
-    return np.asarray(np.clip((P_robot - P_human) * B + P_human, 0.0, 1.0))
+    shape = np.broadcast_shapes(np.shape(P_robot), np.shape(P_human), np.shape(B))
+    r, h, b = (
+        np.array(np.broadcast_to(np.asarray(x, dtype=np.float64), shape), order="C").reshape(-1)
+        for x in (P_robot, P_human, B)
+    )
+    return _ds_alpha_rows(r, h, b).reshape(shape)

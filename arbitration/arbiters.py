@@ -23,16 +23,28 @@ simulation study thousands of trajectories.
 from __future__ import annotations
 
 import enum
+import functools
 import math
-from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from dsteleop.arbitration import allocation, policy
+from dsteleop.arbitration import policy
+from dsteleop.arbitration.allocation import (
+    allocation_linear,
+    allocation_rotation,
+    ds_alpha_of,
+    speed_change_of,
+    standard_alpha_of,
+    unit_directions_into,
+    willingness_of,
+)
 from dsteleop.arbitration.config import ArbitrationConfig
-from dsteleop.arbitration.se3 import FING, TRANS, HandState, StateRows, diff_rows, from_rows
+from dsteleop.arbitration.jit import as_input, kernel
+from dsteleop.arbitration.policy import advance_into, human_action_into, robot_action_into
+from dsteleop.arbitration.se3 import HandState, diff_into, row
 from dsteleop.errors import ConfigError
 
 Array = NDArray[np.float64]
@@ -119,49 +131,44 @@ STEP_ARRAYS = (
 class FilterState:
     """Moving windows of the DS arbiter over the last W ticks, for a batch of M.
 
-    Each window is a tuple of W rows (6 + F, M), oldest first; a tick drops the oldest and
-    appends its own, so no window is copied and an earlier state stays valid (rows are
-    never written in place).
+    Each window is an array (W, M, 6 + F), oldest tick first, read-only: a tick makes new
+    windows (the last W - 1 rows and its own), so an earlier state stays valid.
 
     Attributes:
-        alpha_rows: raw alpha samples (eq 8 on the filtered B, clipped); zeros before the
+        alpha_window: raw alpha samples (eq 8 on the filtered B, clipped); zeros before the
             first tick (the mean divides by min(count, W) filled samples).
-        B_rows: raw willingness samples (eq 7); the window starts full of ones.
+        B_window: raw willingness samples (eq 7); the window starts full of ones.
         count: ticks seen so far.
         batch: the batch shape (...) of the states it filters, M = prod(batch).
     """
 
-    alpha_rows: tuple[Array, ...]
-    B_rows: tuple[Array, ...]
+    alpha_window: Array
+    B_window: Array
     count: int
     batch: tuple[int, ...]
 
     @classmethod
     def initial(cls, window: int, dims: int, batch: tuple[int, ...] = ()) -> FilterState:
         M = math.prod(batch)
-        zeros, ones = np.zeros((dims, M)), np.ones((dims, M))
+        zeros, ones = np.zeros((window, M, dims)), np.ones((window, M, dims))
         zeros.flags.writeable = ones.flags.writeable = False
-        return cls((zeros,) * window, (ones,) * window, 0, tuple(batch))
+        return cls(zeros, ones, 0, tuple(batch))
 
-    def push(
-        self, B_raw: Array, alpha_of: Callable[[Array], Array]
-    ) -> tuple[FilterState, Array, Array]:
-        """One more tick: B's window takes B_raw, alpha's window takes `alpha_of(B)` of the
-        filtered B (eq 8 on the smoothed willingness). Returns the state, alpha and B."""
-        B_rows = (*self.B_rows[1:], B_raw)
-        B = sum(B_rows[1:], B_rows[0]) / len(B_rows)
-        alpha_rows = (*self.alpha_rows[1:], alpha_of(B))
-        alpha = sum(alpha_rows[1:], alpha_rows[0]) / min(self.count + 1, len(alpha_rows))
-        return FilterState(alpha_rows, B_rows, self.count + 1, self.batch), alpha, B
+    @property
+    def alpha_rows(self) -> tuple[Array, ...]:
+        """The alpha window's W rows (M, 6 + F), oldest first."""
+        return tuple(self.alpha_window)
+
+    @property
+    def B_rows(self) -> tuple[Array, ...]:
+        """The B window's W rows (M, 6 + F), oldest first."""
+        return tuple(self.B_window)
 
     def select(self, keep: NDArray[np.bool_]) -> FilterState:
         """The state of the batch rows `keep` (a mask on a one-axis batch)."""
-        return FilterState(
-            tuple(r[:, keep] for r in self.alpha_rows),
-            tuple(r[:, keep] for r in self.B_rows),
-            self.count,
-            (int(np.count_nonzero(keep)),),
-        )
+        a, b = self.alpha_window[:, keep], self.B_window[:, keep]
+        a.flags.writeable = b.flags.writeable = False
+        return FilterState(a, b, self.count, (int(np.count_nonzero(keep)),))
 
 
 #: The modes in the order of `RowModes.codes`.
@@ -222,100 +229,248 @@ class Arbiter:
             ConfigError: the filter state was made for another batch shape or dimension count.
         """
         cfg = self.config
-        states = (inp.X_goal, inp.X_human, inp.X_human_prev, inp.X_human_start,
-                  inp.X_current, inp.X_prev, inp.X_start)  # fmt: skip
-        shapes = {X.batch for X in states}
-        batch = shapes.pop() if len(shapes) == 1 else tuple(np.broadcast_shapes(*shapes))
+        states = (inp.X_human, inp.X_human_prev, inp.X_human_start, inp.X_current,
+                  inp.X_prev, inp.X_start, inp.X_goal)  # fmt: skip
+        shapes = [X.batch for X in states]
+        first = shapes[0]
+        same = all(b == first for b in shapes[1:])
+        batch = first if same else tuple(np.broadcast_shapes(*shapes))
         if inp.X_ref is not None and inp.X_ref.batch not in (batch, ()):
             raise ConfigError(f"X_ref of batch {inp.X_ref.batch} for a tick of batch {batch}")
         F = inp.X_current.n_fingers
         D = 6 + F
-        if state.batch != batch or state.B_rows[0].shape[0] != D:
+        if state.batch != batch or state.B_window.shape[2] != D:
             raise ConfigError(
-                f"filter state for batch {state.batch} and {state.B_rows[0].shape[0]} dims, "
+                f"filter state for batch {state.batch} and {state.B_window.shape[2]} dims, "
                 f"tick of batch {batch} and {D} dims"
             )
         M = math.prod(batch)
-        v_max = cfg.v_max(F)
-        # Every difference of the tick in one pass over 6M pairs, laid out in the rows as
-        #   left   [goal  | goal  | human      | robot  | human       | robot  ]
-        #   right  [human | robot | human_prev | prev   | human_start | start  ]
-        # so that d[:, k] is (goal - agent, agent - its previous, agent - its start) for
-        # k = 0, 1, 2 and the agent axis [human, robot] follows.
-        goal = inp.X_goal
-        left = StateRows.of(
-            goal, goal, inp.X_human, inp.X_current, inp.X_human, inp.X_current, batch=batch
-        )
-        right = StateRows.of(
-            inp.X_human, inp.X_current, inp.X_human_prev, inp.X_prev, inp.X_human_start,
-            inp.X_start, batch=batch,
-        )  # fmt: skip
-        d = diff_rows(left, right).reshape(D, 3, 2, M)
-        d_goal, d_prev, d_start = d[:, 0], d[:, 1], d[:, 2]
-        G, C, Cs = left.part(0, M), left.part(3, M), right.part(5, M)
-        U_h = policy.human_action(d_prev[:, 0], inp.dt, cfg)
-        U_r = policy.robot_action(d_goal[:, 1], cfg)
-        d_goal_start = np.zeros((D, 1, M))
-        d_goal_start[TRANS, 0] = G.p - Cs.p
-        d_goal_start[FING, 0] = G.g - Cs.g
-        P = allocation.expected_allocation(d_goal, d_goal_start, cfg.alloc_floor(F), cfg.kappa)
-        U = np.stack((U_h, U_r), 1)
-        psi = allocation.expected_speed_change(
-            U, v_max, d_prev, d_start, inp.history_term, cfg.still_step(F, inp.dt),
-            cfg.still_offset(F),
-        )  # fmt: skip
-        psi_h, psi_r = psi[:, 0], psi[:, 1]
-        B = allocation.willingness(psi_h, psi_r, cfg.p, cfg.q, cfg.b, cfg.psi_robot_floor)
-        P_h, P_r = P[:, 0], P[:, 1]
-
-        def ds(B: Array) -> tuple[FilterState, Array, Array]:
-            return state.push(B, lambda B_f: allocation.ds_alpha(P_r, P_h, B_f))
-
-        def standard() -> Array:
-            a = allocation.standard_alpha(G.p, C.p, Cs.p, cfg.alloc_floor_m)
-            return np.broadcast_to(a, (D, M))
-
         if rows is None:
-            if self.mode is Mode.DS:
-                state, alpha, B = ds(B)
-            elif self.mode is Mode.S:
-                alpha = standard()
-            else:
-                alpha = np.full((D, M), 1.0 if self.mode is Mode.AUTONOMOUS else 0.0)
+            codes = _MODE_CODE[self.mode]
+            push = self.mode is Mode.DS
         else:
             if rows.codes.shape != (M,):
                 raise ConfigError(f"modes for {rows.codes.shape} rows, tick of batch {batch}")
-            alpha = np.empty((D, M))
-            for mode, where in rows.groups():
-                if mode is Mode.DS:
-                    state, a_ds, B_ds = ds(B)
-                    alpha[:, where], B = a_ds[:, where], np.where(where, B_ds, B)
-                elif mode is Mode.S:
-                    alpha[:, where] = standard()[:, where]
-                else:
-                    alpha[:, where] = 1.0 if mode is Mode.AUTONOMOUS else 0.0
-        U_out = alpha * U_r + (1.0 - alpha) * U_h
-        X_ref = C if inp.X_ref is None else StateRows.of(inp.X_ref, batch=batch)
-        X_next = policy.advance_rows(X_ref, C, U_out, inp.dt, cfg)
-
-        def out(x: Array) -> Array:
-            return from_rows(x, batch)
-
-        return state, ArbitrationStep(
-            alpha=out(alpha),
-            P_human=out(P_h),
-            P_robot=out(P_r),
-            B=out(B),
-            psi_human=out(psi_h),
-            psi_robot=out(psi_r),
-            U_human=out(U_h),
-            U_robot=out(U_r),
-            U_out=out(U_out),
-            X_next=X_next.state(batch),
+            codes = rows.codes
+            push = bool((codes == _DS_CODE).any())
+        dt = float(inp.dt)
+        X_ref = inp.X_current if inp.X_ref is None else inp.X_ref
+        history = np.zeros(D) if inp.history_term is None else inp.history_term
+        arrays: tuple[Any, ...] = tuple(
+            a for X in (*states, X_ref) for a in _state_arrays(X, batch)
         )
+        out, p, R, g, alpha_w, B_w = _tick(  # type: ignore[call-arg]
+            *arrays,
+            as_input(history, (), 1)[0],
+            codes,
+            _per_dim_params(cfg, F, dt),
+            dt, float(cfg.kappa), float(cfg.p), float(cfg.q), float(cfg.b),
+            float(cfg.psi_robot_floor), float(cfg.alloc_floor_m), float(cfg.max_lead_m),
+            float(cfg.max_lead_rad), policy.bound_needed(inp.X_ref is not None, dt, cfg),
+            _read_only(state.alpha_window), _read_only(state.B_window), state.count, push, M,
+        )  # fmt: skip
+        if push:
+            alpha_w.flags.writeable = B_w.flags.writeable = False
+            state = FilterState(alpha_w, B_w, state.count + 1, state.batch)
+        shape = (*batch, D)
+        arrays_out: dict[str, Any] = {n: out[k].reshape(shape) for k, n in enumerate(STEP_ARRAYS)}
+        X_next = HandState(p.reshape(*batch, 3), R.reshape(*batch, 3, 3), g.reshape(*batch, F))
+        return state, ArbitrationStep(**arrays_out, X_next=X_next)
+
+
+#: Each mode's code in `RowModes.codes` (`MODES` order), as the kernel reads it.
+_MODE_CODE = {m: np.array([i], dtype=np.int8) for i, m in enumerate(MODES)}
+_DS_CODE, _S_CODE, _MANUAL_CODE, _AUTONOMOUS_CODE = range(4)
+
+
+def _state_arrays(X: HandState, batch: tuple[int, ...]) -> tuple[Array, Array, Array]:
+    return (
+        as_input(X.position, batch, 1),
+        as_input(X.rotation, batch, 2),
+        as_input(X.openness, batch, 1),
+    )
+
+
+def _read_only(window: Array) -> Array:
+    """The window as the kernel always receives it (one compiled version): read-only."""
+    if not window.flags.writeable:
+        return window
+    view = window.view()
+    view.flags.writeable = False
+    return view
+
+
+@functools.lru_cache(maxsize=64)
+def _per_dim_params(cfg: ArbitrationConfig, n_fingers: int, dt: float) -> Array:
+    """The per-dimension vectors the kernel reads, (5, 6 + F): gains, v_max, the allocation
+    floors, the one-tick and the from-start thresholds of eq (6)."""
+    return np.stack(
+        [
+            cfg.gains(n_fingers),
+            cfg.v_max(n_fingers),
+            cfg.alloc_floor(n_fingers),
+            cfg.still_step(n_fingers, dt),
+            cfg.still_offset(n_fingers),
+        ]
+    )
+
+
+@kernel
+def _tick(
+    Hp: Array, HR: Array, Hg: Array,  # X_human
+    Pp: Array, PR: Array, Pg: Array,  # X_human_prev
+    Sp: Array, SR: Array, Sg: Array,  # X_human_start
+    Cp: Array, CR: Array, Cg: Array,  # X_current
+    Qp: Array, QR: Array, Qg: Array,  # X_prev
+    Tp: Array, TR: Array, Tg: Array,  # X_start
+    Gp: Array, GR: Array, Gg: Array,  # X_goal
+    Rp: Array, RR: Array, Rg: Array,  # X_ref
+    history: Array, codes: NDArray[np.int8], params: Array,
+    dt: float, kappa: float, p: float, q: float, b: float, psi_floor: float,
+    floor_m: float, max_lead_m: float, max_lead_rad: float, bounded: bool,
+    alpha_window: Array, B_window: Array, count: int, push: bool, M: int,
+) -> tuple[Array, Array, Array, Array, Array, Array]:  # fmt: skip
+    """One tick of M rows (module docstring). Each input has M rows or one (shared).
+
+    Returns the STEP_ARRAYS (9, M, 6 + F), X_next (position, rotation, openness) and the
+    new alpha and B windows (W, M, 6 + F; empty when `push` is False).
+    """
+    F = Cg.shape[1]
+    D = 6 + F
+    W = B_window.shape[0]
+    gains, v_max, floor, still_step, still_offset = (
+        params[0],
+        params[1],
+        params[2],
+        params[3],
+        params[4],
+    )
+    out = np.empty((9, M, D))
+    alpha, P_h, P_r, B, psi_h, psi_r, U_h, U_r, U_out = (
+        out[0],
+        out[1],
+        out[2],
+        out[3],
+        out[4],
+        out[5],
+        out[6],
+        out[7],
+        out[8],
+    )
+    next_p, next_R, next_g = np.empty((M, 3)), np.empty((M, 3, 3)), np.empty((M, F))
+    if push:
+        new_alpha, new_B = np.empty((W, M, D)), np.empty((W, M, D))
+        new_alpha[: W - 1] = alpha_window[1:]
+        new_B[: W - 1] = B_window[1:]
+    else:  # unused
+        new_alpha, new_B = np.empty((0, 0, 0)), np.empty((0, 0, 0))
+    d_goal_h, d_goal_r = np.empty(D), np.empty(D)
+    d_prev_h, d_prev_r = np.empty(D), np.empty(D)
+    d_start_h, d_start_r = np.empty(D), np.empty(D)
+    u_prev, u_start = np.empty(D), np.empty(D)
+    for m in range(M):
+        h, hp, hs = row(Hp.shape[0], m), row(Pp.shape[0], m), row(Sp.shape[0], m)
+        c, cp, cs = row(Cp.shape[0], m), row(Qp.shape[0], m), row(Tp.shape[0], m)
+        gl, rf = row(Gp.shape[0], m), row(Rp.shape[0], m)
+        H = (Hp[h], HR[row(HR.shape[0], m)], Hg[row(Hg.shape[0], m)])
+        C = (Cp[c], CR[row(CR.shape[0], m)], Cg[row(Cg.shape[0], m)])
+        G = (Gp[gl], GR[row(GR.shape[0], m)], Gg[row(Gg.shape[0], m)])
+        Cs_p, Cs_g = Tp[cs], Tg[row(Tg.shape[0], m)]
+        # The six differences: to the goal, to the previous state, to the start, per agent.
+        diff_into(G[0], G[1], G[2], H[0], H[1], H[2], d_goal_h)
+        diff_into(G[0], G[1], G[2], C[0], C[1], C[2], d_goal_r)
+        diff_into(H[0], H[1], H[2], Pp[hp], PR[row(PR.shape[0], m)], Pg[row(Pg.shape[0], m)],
+                  d_prev_h)  # fmt: skip
+        diff_into(C[0], C[1], C[2], Qp[cp], QR[row(QR.shape[0], m)], Qg[row(Qg.shape[0], m)],
+                  d_prev_r)  # fmt: skip
+        diff_into(H[0], H[1], H[2], Sp[hs], SR[row(SR.shape[0], m)], Sg[row(Sg.shape[0], m)],
+                  d_start_h)  # fmt: skip
+        diff_into(C[0], C[1], C[2], Cs_p, TR[row(TR.shape[0], m)], Cs_g, d_start_r)
+        # The two actions (policy.py).
+        human_action_into(d_prev_h, dt, v_max, U_h[m])
+        robot_action_into(d_goal_r, gains, v_max, U_r[m])
+        # Eq (4)/(5): P(H), P(R); the goal-start distances are the robot's (its start).
+        for i in range(D):
+            if 3 <= i < 6:
+                P_h[m, i] = allocation_rotation(d_goal_h[i], kappa)
+                P_r[m, i] = allocation_rotation(d_goal_r[i], kappa)
+            else:
+                d_gs = G[0][i] - Cs_p[i] if i < 3 else G[2][i - 6] - Cs_g[i - 6]
+                P_h[m, i] = allocation_linear(d_goal_h[i], d_gs, floor[i])
+                P_r[m, i] = allocation_linear(d_goal_r[i], d_gs, floor[i])
+        # Eq (6): psi per agent, its own states; eq (7): B.
+        for agent in range(2):
+            U_a = U_h[m] if agent == 0 else U_r[m]
+            psi_a = psi_h[m] if agent == 0 else psi_r[m]
+            unit_directions_into(d_prev_h if agent == 0 else d_prev_r, still_step, u_prev)
+            unit_directions_into(d_start_h if agent == 0 else d_start_r, still_offset, u_start)
+            for i in range(D):
+                psi_a[i] = speed_change_of(U_a[i], v_max[i], u_prev[i], u_start[i], history[i])
+        for i in range(D):
+            B[m, i] = willingness_of(psi_h[m, i], psi_r[m, i], p, q, b, psi_floor)
+        # Alpha: eq (8) on the windows (DS), eq (3) (S), or fixed.
+        code = codes[row(codes.shape[0], m)]
+        if push:
+            for i in range(D):
+                B_f = B_window[1, m, i] if W > 1 else 0.0
+                for w in range(2, W):
+                    B_f += B_window[w, m, i]
+                B_f = (B_f + B[m, i]) / W if W > 1 else B[m, i] / W
+                a_raw = ds_alpha_of(P_r[m, i], P_h[m, i], B_f)
+                a_sum = alpha_window[1, m, i] if W > 1 else 0.0
+                for w in range(2, W):
+                    a_sum += alpha_window[w, m, i]
+                a_sum = a_sum + a_raw if W > 1 else a_raw
+                new_B[W - 1, m, i] = B[m, i]
+                new_alpha[W - 1, m, i] = a_raw
+                if code == _DS_CODE:  # the filtered B is the one reported
+                    alpha[m, i] = a_sum / min(count + 1, W)
+                    B[m, i] = B_f
+        if code == _S_CODE:
+            l1_cur = l1_start = 0.0
+            for i in range(3):
+                l1_cur += abs(G[0][i] - C[0][i])
+                l1_start += abs(G[0][i] - Cs_p[i])
+            a_s = standard_alpha_of(l1_cur, l1_start, floor_m)
+            for i in range(D):
+                alpha[m, i] = a_s
+        elif code != _DS_CODE:
+            for i in range(D):
+                alpha[m, i] = 1.0 if code == _AUTONOMOUS_CODE else 0.0
+        # Eq (1), then eq (2) from the reference.
+        for i in range(D):
+            U_out[m, i] = alpha[m, i] * U_r[m, i] + (1.0 - alpha[m, i]) * U_h[m, i]
+        advance_into(
+            Rp[rf], RR[row(RR.shape[0], m)], Rg[row(Rg.shape[0], m)], C[0], C[1],
+            U_out[m], dt, bounded, max_lead_m, max_lead_rad, next_p[m], next_R[m], next_g[m],
+        )  # fmt: skip
+    return out, next_p, next_R, next_g, new_alpha, new_B
 
 
 def make_arbiter(mode: Mode | str, config: ArbitrationConfig | None = None) -> Arbiter:
     """The arbiter of a mode (a Mode or its name: DS, S, manual, autonomous)."""
     m = mode if isinstance(mode, Mode) else Mode.parse(mode)
     return Arbiter(m, config or ArbitrationConfig())
+
+
+def compile_kernels() -> None:
+    """Compile (or load from the cache) every compiled function of the package, so that the
+    first tick of a session does not wait for it: `dev.sh` runs this at install."""
+    from dsteleop.arbitration import allocation, se3
+
+    X = HandState(np.zeros(3), np.eye(3), np.ones(2))
+    U = np.zeros(8)
+    se3.so3_log(se3.so3_exp(np.zeros(3)))
+    se3.diff(X, X)
+    se3.integrate(X, U, 0.1)
+    se3.saturate(U, np.ones(8))
+    policy.advance_reference(X, X, U, 0.1, ArbitrationConfig())
+    d = np.zeros((8, 1))
+    allocation.standard_alpha(d[:3], d[:3], d[:3], 0.1)
+    allocation.expected_allocation(d, d, np.ones(8), 1.0)
+    allocation.expected_speed_change(d, np.ones(8), d, d, np.zeros(8), np.ones(8), np.ones(8))
+    allocation.willingness(d, d, 2.0, 6.0, 1.0, 0.25)
+    allocation.ds_alpha(d, d, d)
+    arbiter = make_arbiter(Mode.DS)
+    inp = ArbitrationInput(X, X, X, X, X, X, X, 0.1, X_ref=X)
+    arbiter.step(arbiter.initial_state(8), inp)

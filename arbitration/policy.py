@@ -24,10 +24,11 @@ robot blocked by the table does not wind it up:
 A kinematic plant (the simulation study) passes X_ref = X_current: eq (2) is then the plain
 integration, because one tick of saturated motion (v_max dt, w_max dt) cannot leave the
 bound when it is within it, as it is by default (8 mm, 0.03 rad against 3 cm, 0.25 rad);
-`advance_rows` skips the bound in that case.
+the kernel skips the bound in that case (`bound_needed`).
 
-The functions work in the rows form of `se3` (dimension-first, batch flattened last);
-`advance_reference` also takes and returns the usual layout for callers outside the kernel.
+The actions and eq (2) are compiled functions of one state (`jit.kernel`), which the
+arbitration kernel calls per row; `advance_reference` is their loop over a batch in the usual
+layout, for the loop's halt ramp.
 """
 
 from __future__ import annotations
@@ -38,64 +39,93 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dsteleop.arbitration.config import ArbitrationConfig
+from dsteleop.arbitration.jit import as_input, kernel
 from dsteleop.arbitration.se3 import (
     HandState,
-    StateRows,
-    exp_rows,
-    integrate_rows,
-    log_relative_rows,
-    matmul_rows,
-    norms_rows,
-    saturate_rows,
-    to_rows,
+    integrate_into,
+    log_relative_of,
+    rotate_into,
+    row,
+    saturate_into,
 )
 
 Array = NDArray[np.float64]
 
 
-def robot_action(d_goal_current: Array, cfg: ArbitrationConfig) -> Array:
-    """U_robot [m/s, rad/s, 1/s], (6 + F, M), from d = diff(X_goal, X_current)."""
-    F = d_goal_current.shape[0] - 6
-    return saturate_rows(cfg.gains(F)[:, None] * d_goal_current, cfg.v_max(F))
+@kernel
+def robot_action_into(d_goal_current: Array, gains: Array, v_max: Array, out: Array) -> None:
+    """U_robot [m/s, rad/s, 1/s] (6 + F,) from d = diff(X_goal, X_current)."""
+    for i in range(d_goal_current.shape[0]):
+        out[i] = gains[i] * d_goal_current[i]
+    saturate_into(out, v_max, out)
 
 
-def human_action(d_human_prev: Array, dt: float, cfg: ArbitrationConfig) -> Array:
-    """U_human [m/s, rad/s, 1/s], (6 + F, M), from d = diff(X_human, X_human_prev)."""
-    return saturate_rows(d_human_prev / dt, cfg.v_max(d_human_prev.shape[0] - 6))
+@kernel
+def human_action_into(d_human_prev: Array, dt: float, v_max: Array, out: Array) -> None:
+    """U_human [m/s, rad/s, 1/s] (6 + F,) from d = diff(X_human, X_human_prev)."""
+    for i in range(d_human_prev.shape[0]):
+        out[i] = d_human_prev[i] / dt
+    saturate_into(out, v_max, out)
 
 
-def advance_rows(
-    X_ref: StateRows, X_current: StateRows, U: Array, dt: float, cfg: ArbitrationConfig
-) -> StateRows:
-    """Eq (2) on the bounded reference (module docstring), rows form."""
-    X = integrate_rows(X_ref, U, dt)
-    if (
-        X_ref is X_current
-        and cfg.v_max_mps * dt <= cfg.max_lead_m
-        and (cfg.w_max_radps * dt <= cfg.max_lead_rad)
-    ):
-        return X  # one saturated tick from the achieved state stays inside the bound
-    dp = X.p - X_current.p
-    p = X_current.p + dp * np.minimum(1.0, cfg.max_lead_m / np.maximum(norms_rows(dp), 1e-300))
-    e = log_relative_rows(X.R, X_current.R)
-    a = norms_rows(e)
-    over = a > cfg.max_lead_rad
-    R = X.R
-    if over.any():
-        k = np.flatnonzero(over)
-        R = R.copy()
-        w = e[:, k] * (cfg.max_lead_rad / a[k])
-        R[..., k] = matmul_rows(exp_rows(w), X_current.R[..., k])
-    return StateRows(p, R, X.g)
+@kernel
+def advance_into(
+    p_ref: Array, R_ref: Array, g_ref: Array,
+    p_cur: Array, R_cur: Array,
+    U: Array, dt: float, bounded: bool, max_lead_m: float, max_lead_rad: float,
+    out_p: Array, out_R: Array, out_g: Array,
+) -> None:  # fmt: skip
+    """Eq (2) on the bounded reference (module docstring), one state; `bounded` False skips
+    the bound (a kinematic plant, whose reference is the achieved state)."""
+    integrate_into(p_ref, R_ref, g_ref, U, dt, out_p, out_R, out_g)
+    if not bounded:
+        return
+    d0, d1, d2 = out_p[0] - p_cur[0], out_p[1] - p_cur[1], out_p[2] - p_cur[2]
+    scale = min(1.0, max_lead_m / max(math.sqrt(d0 * d0 + d1 * d1 + d2 * d2), 1e-300))
+    out_p[0] = p_cur[0] + d0 * scale
+    out_p[1] = p_cur[1] + d1 * scale
+    out_p[2] = p_cur[2] + d2 * scale
+    e0, e1, e2 = log_relative_of(out_R, R_cur)
+    a = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+    if a > max_lead_rad:
+        k = max_lead_rad / a
+        rotate_into(e0 * k, e1 * k, e2 * k, R_cur, out_R)
+
+
+def bound_needed(has_reference: bool, dt: float, cfg: ArbitrationConfig) -> bool:
+    """Whether eq (2) must bound the reference: always when it integrates from a reference of
+    its own; from the achieved state only if one saturated tick can leave the bound."""
+    return has_reference or not (
+        cfg.v_max_mps * dt <= cfg.max_lead_m and cfg.w_max_radps * dt <= cfg.max_lead_rad
+    )
+
+
+@kernel
+def _advance_batch(
+    p_ref: Array, R_ref: Array, g_ref: Array, p_cur: Array, R_cur: Array, U: Array,
+    dt: float, max_lead_m: float, max_lead_rad: float, M: int,
+) -> tuple[Array, Array, Array]:  # fmt: skip
+    out_p, out_R, out_g = np.empty((M, 3)), np.empty((M, 3, 3)), np.empty((M, g_ref.shape[1]))
+    for m in range(M):
+        advance_into(
+            p_ref[row(p_ref.shape[0], m)], R_ref[row(R_ref.shape[0], m)],
+            g_ref[row(g_ref.shape[0], m)], p_cur[row(p_cur.shape[0], m)],
+            R_cur[row(R_cur.shape[0], m)], U[row(U.shape[0], m)], dt, True, max_lead_m,
+            max_lead_rad, out_p[m], out_R[m], out_g[m],
+        )  # fmt: skip
+    return out_p, out_R, out_g
 
 
 def advance_reference(
     X_ref: HandState, X_current: HandState, U: Array, dt: float, cfg: ArbitrationConfig
 ) -> HandState:
     """Eq (2) on the bounded reference, for states in the usual layout, U (..., 6 + F)."""
-    batch = np.broadcast_shapes(X_ref.batch, X_current.batch, U.shape[:-1])
-    U_rows = to_rows(np.broadcast_to(U, (*batch, U.shape[-1])), math.prod(batch), 1)
-    X_ref_rows = StateRows.of(X_ref, batch=batch)
-    X_cur_rows = StateRows.of(X_current, batch=batch)
-    rows = advance_rows(X_ref_rows, X_cur_rows, U_rows, dt, cfg)
-    return rows.state(batch)
+    U = np.asarray(U, dtype=np.float64)
+    batch = tuple(np.broadcast_shapes(X_ref.batch, X_current.batch, U.shape[:-1]))
+    p, R, g = _advance_batch(
+        as_input(X_ref.position, batch, 1), as_input(X_ref.rotation, batch, 2),
+        as_input(X_ref.openness, batch, 1), as_input(X_current.position, batch, 1),
+        as_input(X_current.rotation, batch, 2), as_input(U, batch, 1), float(dt),
+        float(cfg.max_lead_m), float(cfg.max_lead_rad), math.prod(batch),
+    )  # fmt: skip
+    return HandState(p.reshape(*batch, 3), R.reshape(*batch, 3, 3), g.reshape(*batch, -1))

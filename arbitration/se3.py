@@ -26,11 +26,9 @@ relative rotation R_A R_B^T needs only the trace and the skew part of the produc
 elementwise products of the two matrices; only the rare pairs near pi build the product.
 
 Layout. The public functions take the usual layout, vectors last: (..., 3), (..., 3, 3),
-(..., 6 + F). Each is a thin wrapper over a "rows" form (`*_rows`), components first with
-the batch flattened last: (3, M), (3, 3, M), (6 + F, M). There every operation is one pass
-over a contiguous row of M values, which is what makes a batch of thousands fast in numpy;
-the arbitration kernel works in rows throughout (`arbiters.py`). The maths is written once,
-in the rows form.
+(..., 6 + F), with any batch shape (broadcast). The maths is written once, for one state,
+in compiled functions (`*_into`, `jit.kernel`) that the arbitration kernel (`arbiters.py`)
+calls per row; each public function is a loop of them over its flattened batch.
 
 Quaternions are unit (w, x, y, z), w >= 0 (viser's order); other orders are converted where
 they cross a library boundary (PyBullet's xyzw in `robot/`).
@@ -39,11 +37,13 @@ they cross a library boundary (PyBullet's xyzw in `robot/`).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+
+from dsteleop.arbitration.jit import as_input, kernel
 
 Array = NDArray[np.float64]
 
@@ -128,194 +128,204 @@ def stack(states: Sequence[HandState], axis: int = 0) -> HandState:
     )
 
 
-# --- rows layout ------------------------------------------------------------------------
+# --- compiled: one state --------------------------------------------------------------
 
 
-@dataclass(frozen=True)
-class StateRows:
-    """A batch of M hand states in rows form: position (3, M), rotation (3, 3, M), openness
-    (F, M), each row contiguous (module docstring)."""
-
-    p: Array
-    R: Array
-    g: Array
-
-    @classmethod
-    def of(cls, *states: HandState, batch: tuple[int, ...]) -> StateRows:
-        """The states broadcast to `batch`, in rows form, side by side when there are several
-        (M = len(states) * prod(batch); the k-th state's rows are columns k M0 .. (k+1) M0)."""
-        M0 = math.prod(batch)
-        F = states[0].openness.shape[-1]
-        n = len(states)
-        p, R, g = np.empty((3, n * M0)), np.empty((9, n * M0)), np.empty((F, n * M0))
-
-        def put(out: Array, x: Array, tail: tuple[int, ...], cols: slice) -> None:
-            if x.shape[: x.ndim - len(tail)] != batch:
-                x = np.broadcast_to(x, (*batch, *tail))
-            out[:, cols] = x.reshape(M0, out.shape[0]).T
-
-        for k, X in enumerate(states):
-            cols = slice(k * M0, (k + 1) * M0)
-            put(p, X.position, (3,), cols)
-            put(R, X.rotation, (3, 3), cols)
-            put(g, X.openness, (F,), cols)
-        return cls(p, R.reshape(3, 3, n * M0), g)
-
-    def part(self, k: int, M0: int) -> StateRows:
-        """The k-th of several states laid side by side by `of` (views)."""
-        cols = slice(k * M0, (k + 1) * M0)
-        return StateRows(self.p[:, cols], self.R[..., cols], self.g[:, cols])
-
-    def state(self, batch: tuple[int, ...]) -> HandState:
-        """Back to the usual layout with batch shape `batch`."""
-        return HandState(
-            from_rows(self.p, batch), from_rows(self.R, batch), from_rows(self.g, batch)
-        )
+@kernel
+def row(n: int, m: int) -> int:
+    """The row of an input with n rows for batch row m: its own, or its only one (shared)."""
+    return m if n > 1 else 0
 
 
-def to_rows(x: Array, M: int, vector_axes: int) -> Array:
-    """(..., k) or (..., 3, 3) -> (k, M) or (3, 3, M), contiguous (a copy, or a view for a
-    single state)."""
-    tail = x.shape[x.ndim - vector_axes :]
-    x = np.asarray(x, dtype=np.float64)
-    if x.ndim == vector_axes:  # one state: already components first
-        return x.reshape(*tail, 1)
-    flat = x.reshape(M, math.prod(tail))
-    return np.ascontiguousarray(flat.T).reshape(*tail, M)
+@kernel
+def exp_of(w0: float, w1: float, w2: float) -> tuple[float, ...]:
+    """exp(w) (module docstring) as its 9 entries, row by row."""
+    t2 = w0 * w0 + w1 * w1 + w2 * w2
+    t = math.sqrt(t2)
+    if t < _SMALL_RAD:
+        a = 1.0 - t2 / 6.0
+        b = 0.5 - t2 / 24.0
+    else:
+        a = math.sin(t) / t
+        b = (1.0 - math.cos(t)) / (t * t)
+    c = 1.0 - b * t2
+    return (
+        b * w0 * w0 + c, b * w0 * w1 - a * w2, b * w0 * w2 + a * w1,
+        b * w1 * w0 + a * w2, b * w1 * w1 + c, b * w1 * w2 - a * w0,
+        b * w2 * w0 - a * w1, b * w2 * w1 + a * w0, b * w2 * w2 + c,
+    )  # fmt: skip
 
 
-def from_rows(x: Array, batch: tuple[int, ...]) -> Array:
-    """(k, M) or (3, 3, M) -> (..., k) or (..., 3, 3) with batch shape `batch` (a view)."""
-    tail = x.shape[:-1]
-    if not batch:
-        return x.reshape(tail)
-    return x.reshape(math.prod(tail), x.shape[-1]).T.reshape(*batch, *tail)
-
-
-def exp_rows(w: Array) -> Array:
-    """so3_exp in rows form: w (3, M) -> (3, 3, M)."""
-    t2 = _sum3(w * w)
-    t = np.sqrt(t2)
-    small = t < _SMALL_RAD
-    safe = np.where(small, 1.0, t)
-    a = np.where(small, 1.0 - t2 / 6.0, np.sin(safe) / safe)
-    b = np.where(small, 0.5 - t2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
-    R = (b * w)[:, None] * w[None, :]  # b w w^T
-    R.reshape(9, -1)[::4] += 1.0 - b * t2  # the diagonal
-    aw = a * w  # + a hat(w)
-    R[0, 1] -= aw[2]
-    R[1, 0] += aw[2]
-    R[0, 2] += aw[1]
-    R[2, 0] -= aw[1]
-    R[1, 2] -= aw[0]
-    R[2, 1] += aw[0]
-    return R
-
-
-def matmul_rows(A: Array, B: Array) -> Array:
-    """A B for rows-form matrices (3, 3, M)."""
-    out = np.empty(np.broadcast_shapes(A.shape, B.shape))
+@kernel
+def rotate_into(w0: float, w1: float, w2: float, R: Array, out: Array) -> None:
+    """out (3, 3) = exp(w) R; out must not be R."""
+    E = exp_of(w0, w1, w2)
     for i in range(3):
         for j in range(3):
-            out[i, j] = A[i, 0] * B[0, j] + A[i, 1] * B[1, j] + A[i, 2] * B[2, j]
-    return out
+            out[i, j] = E[3 * i] * R[0, j] + E[3 * i + 1] * R[1, j] + E[3 * i + 2] * R[2, j]
 
 
-def log_relative_rows(Ra: Array, Rb: Array) -> Array:
-    """so3_log(Ra Rb^T) in rows form: (3, 3, M) each -> (3, M) (module docstring)."""
-    # trace(Ra Rb^T) = sum_ij a_ij b_ij; 2 vee(skew) = (m21 - m12, m02 - m20, m10 - m01) with
-    # m_ij = sum_k a_ik b_jk. Sums written out in a fixed order, so that a state gives the
-    # same bits alone and in a batch.
-    prod = Ra * Rb
-    trace = _sum3(_sum3(prod[0]), _sum3(prod[1]), _sum3(prod[2]))
-    skew2 = np.empty((3, trace.shape[-1]))
-    for i, j, k in ((0, 2, 1), (1, 0, 2), (2, 1, 0)):
-        skew2[i] = _sum3(Ra[j] * Rb[k]) - _sum3(Ra[k] * Rb[j])
+@kernel
+def log_relative_of(Ra: Array, Rb: Array) -> tuple[float, float, float]:
+    """log(Ra Rb^T) (module docstring), as its 3 components.
 
-    def products(idx: NDArray[np.intp]) -> Array:
-        return np.einsum("ikm,jkm->mij", Ra[..., idx], Rb[..., idx])
-
-    return _log(trace, skew2, products)
-
-
-def _sum3(a: Array, b: Array | None = None, c: Array | None = None) -> Array:
-    """a[0] + a[1] + a[2] of a (3, M) array, or a + b + c of three (M,) arrays."""
-    if b is None or c is None:
-        return np.asarray(a[0] + a[1] + a[2])
-    return np.asarray(a + b + c)
-
-
-def _log(trace: Array, skew2: Array, products: Callable[[NDArray[np.intp]], Array]) -> Array:
-    """The logarithm from trace(R) (M,) and 2 vee(skew R) (3, M) -> (3, M) (module docstring).
-
-    theta = atan2(|vee(skew R)|, (trace - 1) / 2): full precision at 0 and at pi alike (an
-    arccos of the trace alone loses half the digits near both). `products(indices)` gives
-    the matrices R (n, 3, 3) of the pairs near pi.
+    trace(Ra Rb^T) = sum_ij a_ij b_ij and 2 vee(skew) = (m21 - m12, m02 - m20, m10 - m01)
+    with m_ij = sum_k a_ik b_jk; theta = atan2(|vee(skew)|, (trace - 1) / 2) keeps full
+    precision at 0 and at pi alike (an arccos of the trace alone loses half the digits near
+    both).
     """
-    cos_t = np.clip((trace - 1.0) * 0.5, -1.0, 1.0)
-    sin_t = 0.5 * np.sqrt(_sum3(skew2 * skew2))
-    theta = np.arctan2(sin_t, cos_t)
-    small = theta < _SMALL_RAD
-    near_pi = theta > np.pi - _NEAR_PI_RAD
-    # theta / sin(theta), with its series 1 + theta^2 / 6 below 1e-4 rad (and 1 near pi,
-    # where the axis is recomputed below).
-    ratio = np.where(small | near_pi, 1.0 + theta * theta / 6.0, theta / np.maximum(sin_t, 1e-300))
-    half_scale = 0.5 * ratio
-    out = half_scale * skew2
-    idx = np.flatnonzero(near_pi)
-    if idx.size:
-        Rn = products(idx)
-        cn = cos_t[idx][:, None, None]
-        sym = (0.5 * (Rn + np.swapaxes(Rn, -1, -2)) - cn * _EYE) / (1.0 - cn)
-        diag = np.diagonal(sym, axis1=-2, axis2=-1)
-        k = np.argmax(diag, axis=-1)
-        m = np.arange(k.size)
-        axis = sym[m, :, k] / np.sqrt(np.maximum(diag[m, k], 1e-300))[:, None]
-        sign = np.where((axis * skew2[:, idx].T).sum(-1) < 0.0, -1.0, 1.0)
-        out[:, idx] = ((theta[idx] * sign)[:, None] * axis).T
+    tr = 0.0
+    for i in range(3):
+        tr += Ra[i, 0] * Rb[i, 0] + Ra[i, 1] * Rb[i, 1] + Ra[i, 2] * Rb[i, 2]
+    s0 = _dot3(Ra, 2, Rb, 1) - _dot3(Ra, 1, Rb, 2)
+    s1 = _dot3(Ra, 0, Rb, 2) - _dot3(Ra, 2, Rb, 0)
+    s2 = _dot3(Ra, 1, Rb, 0) - _dot3(Ra, 0, Rb, 1)
+    cos_t = min(max((tr - 1.0) * 0.5, -1.0), 1.0)
+    sin_t = 0.5 * math.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+    theta = math.atan2(sin_t, cos_t)
+    if theta <= math.pi - _NEAR_PI_RAD:
+        # theta / sin(theta), with its series 1 + theta^2 / 6 below 1e-4 rad.
+        if theta < _SMALL_RAD:
+            half = 0.5 * (1.0 + theta * theta / 6.0)
+        else:
+            half = 0.5 * theta / max(sin_t, 1e-300)
+        return half * s0, half * s1, half * s2
+    # Near pi: the axis from the symmetric part of R = Ra Rb^T (module docstring): the
+    # column of its largest diagonal entry, signed to agree with vee(R - R^T).
+    best, k = -math.inf, 0
+    for i in range(3):
+        d = (_dot3(Ra, i, Rb, i) - cos_t) / (1.0 - cos_t)
+        if d > best:
+            best, k = d, i
+    scale = 1.0 / (1.0 - cos_t) / math.sqrt(max(best, 1e-300))
+    a0 = (0.5 * (_dot3(Ra, 0, Rb, k) + _dot3(Ra, k, Rb, 0)) - (cos_t if k == 0 else 0.0)) * scale
+    a1 = (0.5 * (_dot3(Ra, 1, Rb, k) + _dot3(Ra, k, Rb, 1)) - (cos_t if k == 1 else 0.0)) * scale
+    a2 = (0.5 * (_dot3(Ra, 2, Rb, k) + _dot3(Ra, k, Rb, 2)) - (cos_t if k == 2 else 0.0)) * scale
+    if a0 * s0 + a1 * s1 + a2 * s2 < 0.0:
+        theta = -theta
+    return theta * a0, theta * a1, theta * a2
+
+
+@kernel
+def _dot3(A: Array, i: int, B: Array, j: int) -> float:
+    """(A B^T)_ij: row i of A dotted with row j of B."""
+    return A[i, 0] * B[j, 0] + A[i, 1] * B[j, 1] + A[i, 2] * B[j, 2]
+
+
+@kernel
+def diff_into(pa: Array, Ra: Array, ga: Array, pb: Array, Rb: Array, gb: Array, out: Array) -> None:
+    """out (6 + F,) = diff(A, B) = [p_A - p_B, log(R_A R_B^T), g_A - g_B]."""
+    for i in range(3):
+        out[i] = pa[i] - pb[i]
+    out[3], out[4], out[5] = log_relative_of(Ra, Rb)
+    for f in range(ga.shape[0]):
+        out[6 + f] = ga[f] - gb[f]
+
+
+@kernel
+def integrate_into(
+    p: Array, R: Array, g: Array, U: Array, dt: float, out_p: Array, out_R: Array, out_g: Array
+) -> None:
+    """Eq (2) for one state: p + v dt, exp(w dt) R, clip(g + gdot dt, 0, 1)."""
+    for i in range(3):
+        out_p[i] = p[i] + U[i] * dt
+    rotate_into(U[3] * dt, U[4] * dt, U[5] * dt, R, out_R)
+    for f in range(g.shape[0]):
+        out_g[f] = min(max(g[f] + U[6 + f] * dt, 0.0), 1.0)
+
+
+@kernel
+def group_norm(x: Array, start: int, stop: int) -> float:
+    """Euclidean norm of x[start:stop]."""
+    s = 0.0
+    for i in range(start, stop):
+        s += x[i] * x[i]
+    return math.sqrt(s)
+
+
+@kernel
+def saturate_into(U: Array, v_max: Array, out: Array) -> None:
+    """out (6 + F,) = U with translation and rotation scaled to |.| <= v_max[0], v_max[3] and
+    each finger clipped to +-v_max[6 + f] (out may be U)."""
+    for start in (0, 3):
+        scale = min(1.0, v_max[start] / max(group_norm(U, start, start + 3), 1e-300))
+        for i in range(start, start + 3):
+            out[i] = U[i] * scale
+    for i in range(6, U.shape[0]):
+        out[i] = min(max(U[i], -v_max[i]), v_max[i])
+
+
+# --- compiled: a batch (rows of the inputs as `jit.as_input` flattens them) ---------------
+
+
+@kernel
+def _exp_batch(w: Array) -> Array:
+    out = np.empty((w.shape[0], 3, 3))
+    for m in range(w.shape[0]):
+        E = exp_of(w[m, 0], w[m, 1], w[m, 2])
+        for k in range(9):
+            out[m, k // 3, k % 3] = E[k]
     return out
 
 
-_EYE = np.eye(3)
-
-
-def diff_rows(A: StateRows, B: StateRows) -> Array:
-    """diff in rows form: (6 + F, M)."""
-    F = A.g.shape[0]
-    M = max(A.p.shape[-1], B.p.shape[-1])
-    out = np.empty((6 + F, M))
-    np.subtract(A.p, B.p, out=out[TRANS])
-    out[ROT] = log_relative_rows(A.R, B.R)
-    np.subtract(A.g, B.g, out=out[FING])
+@kernel
+def _log_relative_batch(Ra: Array, Rb: Array, M: int) -> Array:
+    out = np.empty((M, 3))
+    for m in range(M):
+        out[m, 0], out[m, 1], out[m, 2] = log_relative_of(
+            Ra[row(Ra.shape[0], m)], Rb[row(Rb.shape[0], m)]
+        )
     return out
 
 
-def integrate_rows(X: StateRows, U: Array, dt: float) -> StateRows:
-    """integrate in rows form: U (6 + F, M)."""
-    return StateRows(
-        X.p + U[TRANS] * dt,
-        matmul_rows(exp_rows(U[ROT] * dt), X.R),
-        np.clip(X.g + U[FING] * dt, 0.0, 1.0),
-    )
+@kernel
+def _diff_batch(pa: Array, Ra: Array, ga: Array, pb: Array, Rb: Array, gb: Array, M: int) -> Array:
+    out = np.empty((M, 6 + ga.shape[1]))
+    for m in range(M):
+        a, b = row(pa.shape[0], m), row(pb.shape[0], m)
+        ra, rb = row(Ra.shape[0], m), row(Rb.shape[0], m)
+        fa, fb = row(ga.shape[0], m), row(gb.shape[0], m)
+        diff_into(pa[a], Ra[ra], ga[fa], pb[b], Rb[rb], gb[fb], out[m])
+    return out
 
 
-def norms_rows(x: Array) -> Array:
-    """Euclidean norm over the first axis: (k, ...) -> (...)."""
-    return np.sqrt((x * x).sum(0))
+@kernel
+def _integrate_batch(
+    p: Array, R: Array, g: Array, U: Array, dt: float, M: int
+) -> tuple[Array, Array, Array]:
+    out_p, out_R, out_g = np.empty((M, 3)), np.empty((M, 3, 3)), np.empty((M, g.shape[1]))
+    for m in range(M):
+        integrate_into(
+            p[row(p.shape[0], m)], R[row(R.shape[0], m)], g[row(g.shape[0], m)],
+            U[row(U.shape[0], m)], dt, out_p[m], out_R[m], out_g[m],
+        )  # fmt: skip
+    return out_p, out_R, out_g
 
 
-def saturate_rows(U: Array, v_max: Array) -> Array:
-    """saturate in rows form: U (6 + F, M), v_max (6 + F,)."""
+@kernel
+def _saturate_batch(U: Array, v_max: Array) -> Array:
     out = np.empty_like(U)
-    for g in (TRANS, ROT):
-        limit = v_max[g.start]
-        np.multiply(U[g], np.minimum(1.0, limit / np.maximum(norms_rows(U[g]), 1e-300)), out=out[g])
-    vf = v_max[FING, None]
-    np.clip(U[FING], -vf, vf, out=out[FING])
+    for m in range(U.shape[0]):
+        saturate_into(U[m], v_max, out[m])
     return out
 
 
 # --- the usual layout ---------------------------------------------------------------------
+
+
+def _batch_of(*shapes: tuple[int, ...]) -> tuple[int, ...]:
+    first = shapes[0]
+    if all(s == first for s in shapes[1:]):
+        return first
+    return tuple(np.broadcast_shapes(*shapes))
+
+
+def _state_input(X: HandState, batch: tuple[int, ...]) -> tuple[Array, Array, Array]:
+    return (
+        as_input(X.position, batch, 1),
+        as_input(X.rotation, batch, 2),
+        as_input(X.openness, batch, 1),
+    )
 
 
 def hat(w: Array) -> Array:
@@ -334,39 +344,36 @@ def so3_exp(w: Array) -> Array:
     """Rotation matrix of a rotation vector (Rodrigues), (..., 3) -> (..., 3, 3)."""
     w = np.asarray(w, dtype=np.float64)
     batch = w.shape[:-1]
-    return from_rows(exp_rows(to_rows(w, math.prod(batch), 1)), batch)
+    return _exp_batch(as_input(w, batch, 1)).reshape(*batch, 3, 3)
 
 
 def so3_log(R: Array) -> Array:
     """Rotation vector of a rotation matrix, angle in [0, pi], (..., 3, 3) -> (..., 3)."""
-    R = np.asarray(R, dtype=np.float64)
-    batch = R.shape[:-2]
-    Rr = to_rows(R, math.prod(batch), 2)
-    trace = Rr[0, 0] + Rr[1, 1] + Rr[2, 2]
-    skew2 = np.stack([Rr[2, 1] - Rr[1, 2], Rr[0, 2] - Rr[2, 0], Rr[1, 0] - Rr[0, 1]])
-    return from_rows(_log(trace, skew2, lambda idx: np.moveaxis(Rr[..., idx], -1, 0)), batch)
+    return log_relative(R, _EYE)
 
 
 def log_relative(Ra: Array, Rb: Array) -> Array:
     """so3_log(Ra Rb^T), (..., 3, 3) each -> (..., 3), without forming the product."""
-    batch = np.broadcast_shapes(np.shape(Ra)[:-2], np.shape(Rb)[:-2])
-    M = math.prod(batch)
-    a = to_rows(np.broadcast_to(Ra, (*batch, 3, 3)), M, 2)
-    b = to_rows(np.broadcast_to(Rb, (*batch, 3, 3)), M, 2)
-    return from_rows(log_relative_rows(a, b), batch)
+    batch = _batch_of(np.shape(Ra)[:-2], np.shape(Rb)[:-2])
+    a, b = as_input(Ra, batch, 2), as_input(Rb, batch, 2)
+    return _log_relative_batch(a, b, math.prod(batch)).reshape(*batch, 3)
 
 
 def diff(A: HandState, B: HandState) -> Array:
     """Difference A - B of two hand states as a (..., 6 + F) vector (module docstring)."""
-    batch = np.broadcast_shapes(A.batch, B.batch)
-    return from_rows(diff_rows(StateRows.of(A, batch=batch), StateRows.of(B, batch=batch)), batch)
+    batch = _batch_of(A.batch, B.batch)
+    out = _diff_batch(*_state_input(A, batch), *_state_input(B, batch), math.prod(batch))
+    return out.reshape(*batch, out.shape[-1])
 
 
 def integrate(X: HandState, U: Array, dt: float) -> HandState:
     """Eq (2): apply the velocity U (..., 6 + F) to X for dt [s]."""
-    batch = np.broadcast_shapes(X.batch, U.shape[:-1])
-    U_rows = to_rows(np.broadcast_to(U, (*batch, U.shape[-1])), math.prod(batch), 1)
-    return integrate_rows(StateRows.of(X, batch=batch), U_rows, dt).state(batch)
+    U = np.asarray(U, dtype=np.float64)
+    batch = _batch_of(X.batch, U.shape[:-1])
+    p, R, g = _integrate_batch(
+        *_state_input(X, batch), as_input(U, batch, 1), float(dt), math.prod(batch)
+    )
+    return HandState(p.reshape(*batch, 3), R.reshape(*batch, 3, 3), g.reshape(*batch, -1))
 
 
 def group_norms(x: Array) -> Array:
@@ -374,8 +381,8 @@ def group_norms(x: Array) -> Array:
 
     With no fingers (D = 6) the last column is 0.
     """
-    rows = np.moveaxis(x, -1, 0)
-    return np.stack([norms_rows(rows[g]) for g in (TRANS, ROT, FING)], -1)
+    x = np.asarray(x, dtype=np.float64)
+    return np.stack([np.sqrt((x[..., g] ** 2).sum(-1)) for g in (TRANS, ROT, FING)], -1)
 
 
 def saturate(U: Array, v_max: Array) -> Array:
@@ -388,7 +395,11 @@ def saturate(U: Array, v_max: Array) -> Array:
     """
     U = np.asarray(U, dtype=np.float64)
     batch = U.shape[:-1]
-    return from_rows(saturate_rows(to_rows(U, math.prod(batch), 1), v_max), batch)
+    out = _saturate_batch(as_input(U, batch, 1), as_input(v_max, (), 1)[0])
+    return out.reshape(U.shape)
+
+
+_EYE = np.eye(3)
 
 
 def quat_wxyz_from_matrix(R: Array) -> Array:

@@ -43,6 +43,7 @@ from dsteleop.app.session.schema import RecordingStatus, TickRecord, encode_even
 from dsteleop.app.session.video import FrameRecorder
 from dsteleop.app.session.writer import HistoryFile, Recorder, SessionWriter, new_session_folder
 from dsteleop.arbitration import HandState, Mode, OperatorHistory, dim_names, make_arbiter
+from dsteleop.arbitration.arbiters import compile_kernels
 from dsteleop.errors import DsteleopError
 
 log = logging.getLogger(__name__)
@@ -389,9 +390,11 @@ class TeleopLoop:
         over the whole heap (measured: up to 26 ms, and a missed tick). Every other thread of
         the process runs a few niceness steps below the loop's (`timing.put_this_thread_first`:
         its own capture, tracking, viewer and recorder threads would otherwise delay a due tick
-        by several milliseconds on two cores).
+        by several milliseconds on two cores). The compiled arbitration is loaded before the
+        schedule starts.
         """
         n = 0
+        compile_kernels()  # loaded from numba's cache now (~0.5 s), not at the first tick
         gc.collect()
         gc.freeze()
         self.hand.start()
