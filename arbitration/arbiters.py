@@ -278,9 +278,9 @@ class Arbiter:
         return state, ArbitrationStep(**arrays_out, X_next=X_next)
 
 
-#: Each mode's code in `RowModes.codes` (`MODES` order), as the kernel reads it.
+#: Each mode's code in `RowModes.codes` (its index in `MODES`), as the kernel reads it.
 _MODE_CODE = {m: np.array([i], dtype=np.int8) for i, m in enumerate(MODES)}
-_DS_CODE, _S_CODE, _MANUAL_CODE, _AUTONOMOUS_CODE = range(4)
+_DS_CODE, _S_CODE, _AUTONOMOUS_CODE = (MODES.index(m) for m in (Mode.DS, Mode.S, Mode.AUTONOMOUS))
 
 
 def _state_arrays(X: HandState, batch: tuple[int, ...]) -> tuple[Array, Array, Array]:
