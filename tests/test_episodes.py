@@ -192,6 +192,16 @@ def test_a_session_without_metadata_is_refused_not_replayed_as_a_video(
         assert main(["replay", str(target), "--modes", "DS", "--out", str(out)]) == 2
         (line,) = capsys.readouterr().err.strip().splitlines()
         assert "without its meta.json" in line and "lost-meta" in line
+    # `tune --sessions` reads a folder of sessions the same way: refused, not skipped.
+    good = tmp_path / "sessions" / "good"
+    shutil.copytree(SAMPLE, good)
+    for target in (lost, lost.parent):
+        out = tmp_path / f"t-{target.name}"
+        args = ["tune", "--no-progress", "--trials", "1", "--out", str(out)]
+        assert main([*args, "--objective", "sessions", "--sessions", str(target)]) == 2
+        (line,) = capsys.readouterr().err.strip().splitlines()
+        assert line.startswith("dsteleop tune: error:")
+        assert "without its meta.json" in line and "lost-meta" in line
 
 
 def test_the_trajectory_plot_has_metres_goals_and_phases() -> None:

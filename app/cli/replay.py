@@ -119,15 +119,15 @@ def _expand(inputs: list[str]) -> tuple[Path, ...]:
     """Session folders and videos; a folder of them is opened. A folder with what a session
     holds but no meta.json is a session without its metadata: kept, so that reading it
     refuses it, never replayed as a plain video."""
-    from dsteleop.app.session.reader import looks_like_session
+    from dsteleop.app.session.reader import sessions_in
 
     out: list[Path] = []
     for s in inputs:
         p = Path(s)
         if not p.exists():
             raise InputError(f"not found: {p}")
-        if p.is_dir() and not looks_like_session(p):
-            subs = sorted(q for q in p.iterdir() if q.is_dir() and looks_like_session(q))
+        subs = sessions_in(p)
+        if p.is_dir() and subs != [p]:
             vids = sorted(q for q in p.iterdir() if q.suffix.lower() in VIDEO_SUFFIXES)
             if not subs and not vids:
                 raise InputError(f"{p} holds no sessions (folders with meta.json) and no videos")

@@ -174,21 +174,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _sessions(items: list[str] | tuple[str, ...], option: str) -> list[str]:
-    """Session folders (a folder of sessions counts for each), absolute, each readable."""
-    from dsteleop.app.session.reader import is_session, read_session
+    """Session folders (a folder of sessions counts for each, as in `replay`), absolute,
+    each readable."""
+    from dsteleop.app.session.reader import read_session, sessions_in
 
     out: list[str] = []
     for s in items:
         p = Path(s)
         if not p.exists():
             raise InputError(f"{option}: not found: {p}")
-        if p.is_dir() and not is_session(p):
-            subs = sorted(q for q in p.iterdir() if q.is_dir() and is_session(q))
-            if not subs:
-                raise InputError(f"{option}: {p} is not a session and holds none")
-            out.extend(str(q.resolve()) for q in subs)
-        else:
-            out.append(str(p.resolve()))
+        subs = sessions_in(p) if p.is_dir() else [p]
+        if not subs:
+            raise InputError(f"{option}: {p} is not a session and holds none")
+        out.extend(str(q.resolve()) for q in subs)
     for p_s in out:
         read_session(Path(p_s))  # a missing or corrupt session: one line, now
     if len(set(out)) != len(out):

@@ -105,13 +105,22 @@ class Session:
         return p if p.is_file() else None
 
 
-def is_session(folder: Path) -> bool:
-    return (Path(folder) / META).is_file()
-
-
 def looks_like_session(folder: Path) -> bool:
     """A session folder, or what is left of one without its metadata."""
     return any((Path(folder) / n).is_file() for n in (META, TICKS, FRAMES))
+
+
+def sessions_in(path: Path) -> list[Path]:
+    """The sessions a command-line path names: the folder itself when it looks like a
+    session, else the sub-folders that do, sorted (none for a file). A folder with what a
+    session holds but no meta.json counts, so that `read_session` refuses it in one line:
+    no command skips it silently."""
+    path = Path(path)
+    if looks_like_session(path):
+        return [path]
+    if not path.is_dir():
+        return []
+    return sorted(q for q in path.iterdir() if q.is_dir() and looks_like_session(q))
 
 
 def read_session(folder: Path) -> Session:
