@@ -52,9 +52,11 @@ sync() {
     # Python cannot cache bytecode (PYTHONDONTWRITEBYTECODE=1, as containers often set; ~3 s
     # of each `dsteleop sim` run here went to compiling matplotlib and scipy).
     "$TOOLS/bin/uv" sync --locked --compile-bytecode --python "$(command -v "$py")" --quiet
-    # The arbitration kernel is compiled by numba; compile it now (~35 s the first time, then
-    # loaded from its cache in under a second) rather than at the first tick of a session.
-    .venv/bin/python -c 'from dsteleop.arbitration.arbiters import compile_kernels as c; c()'
+    # The arbitration kernel and the arm's IK are compiled by numba; compile them now (~1 min
+    # the first time, then loaded from the cache in under a second), not in a session.
+    .venv/bin/python -c 'from dsteleop.arbitration.arbiters import compile_kernels as a
+from dsteleop.robot.kinematics import compile_kernels as r
+a(); r()'
 }
 
 cmd="${1:-}"

@@ -1,4 +1,4 @@
-"""Forward kinematics, Jacobian and damped-least-squares IK of the arm, in numpy.
+"""Forward kinematics, Jacobian and damped-least-squares IK of the arm, compiled (numba).
 
 PyBullet has no stateless forward kinematics and its null-space IK leaves a few millimetres
 of bias, so the arm chain (base -> 7 revolute joints -> fixed flange-to-palm joint) is read
@@ -22,13 +22,15 @@ controller: what one tick leaves, the next one removes.
 
 from __future__ import annotations
 
+import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
-from dsteleop.arbitration.se3 import log_relative, so3_exp
+from dsteleop.arbitration.jit import kernel
+from dsteleop.arbitration.se3 import exp_of, log_relative_of
 from dsteleop.errors import InputError
 
 Array = NDArray[np.float64]
@@ -56,6 +58,7 @@ def _origin(el: ET.Element) -> Array:
     return T
 
 
+@kernel
 def _solve_spd(A: Array, b: Array) -> Array:
     """x with A x = b for a small symmetric positive-definite A (Gauss-Jordan, no pivoting).
 
@@ -67,11 +70,157 @@ def _solve_spd(A: Array, b: Array) -> Array:
     M[:, :n] = A
     M[:, n] = b
     for i in range(n):
-        M[i] /= M[i, i]
-        f = M[:, i].copy()
-        f[i] = 0.0
-        M -= f[:, None] * M[i]
+        pivot = M[i, i]
+        for j in range(n + 1):
+            M[i, j] /= pivot
+        for r in range(n):
+            if r != i:
+                f = M[r, i]
+                for j in range(n + 1):
+                    M[r, j] -= f * M[i, j]
     return M[:, n].copy()
+
+
+@kernel
+def _matmul4_into(A: Array, B: Array, out: Array) -> None:
+    """out (4, 4) = A B; out must not be A or B."""
+    for i in range(4):
+        for j in range(4):
+            out[i, j] = (
+                A[i, 0] * B[0, j] + A[i, 1] * B[1, j] + A[i, 2] * B[2, j] + A[i, 3] * B[3, j]
+            )
+
+
+@kernel
+def _frames(fixed: Array, axes: Array, z_axes: bool, q: Array) -> tuple[Array, Array, Array, Array]:
+    """`ArmChain.frames`: joint origins (n, 3) and axes (n, 3) in the base frame, tip p, R."""
+    n = q.shape[0]
+    origins, axes_b = np.empty((n, 3)), np.empty((n, 3))
+    T, T_next, A, Rj = np.eye(4), np.empty((4, 4)), np.empty((4, 4)), np.zeros((4, 4))
+    Rj[3, 3] = 1.0
+    for k in range(n):
+        if z_axes:
+            c, s = math.cos(q[k]), math.sin(q[k])
+            Rj[0, 0], Rj[0, 1], Rj[1, 0], Rj[1, 1], Rj[2, 2] = c, -s, s, c, 1.0
+        else:
+            E = exp_of(axes[k, 0] * q[k], axes[k, 1] * q[k], axes[k, 2] * q[k])
+            for i in range(3):
+                for j in range(3):
+                    Rj[i, j] = E[3 * i + j]
+        _matmul4_into(fixed[k], Rj, A)  # parent -> joint frame, then the joint's rotation
+        _matmul4_into(T, A, T_next)
+        T[:] = T_next
+        for i in range(3):
+            origins[k, i] = T[i, 3]
+            if z_axes:
+                axes_b[k, i] = T[i, 2]
+            else:
+                axes_b[k, i] = T[i, 0] * axes[k, 0] + T[i, 1] * axes[k, 1] + T[i, 2] * axes[k, 2]
+    _matmul4_into(T, fixed[n], T_next)
+    return origins, axes_b, T_next[:3, 3].copy(), T_next[:3, :3].copy()
+
+
+@kernel
+def _jacobian(fixed: Array, axes: Array, z_axes: bool, q: Array) -> tuple[Array, Array, Array]:
+    """`ArmChain.jacobian`: (6, n) [linear; angular] and the tip pose."""
+    origins, axes_b, p, R = _frames(fixed, axes, z_axes, q)
+    n = q.shape[0]
+    J = np.empty((6, n))
+    for k in range(n):
+        a0, a1, a2 = axes_b[k, 0], axes_b[k, 1], axes_b[k, 2]
+        r0, r1, r2 = p[0] - origins[k, 0], p[1] - origins[k, 1], p[2] - origins[k, 2]
+        J[0, k] = a1 * r2 - a2 * r1  # axis x (p - origin)
+        J[1, k] = a2 * r0 - a0 * r2
+        J[2, k] = a0 * r1 - a1 * r0
+        J[3, k], J[4, k], J[5, k] = a0, a1, a2
+    return J, p, R
+
+
+@kernel
+def _ik(
+    fixed: Array, axes: Array, z_axes: bool, lower: Array, upper: Array,
+    p_target: Array, R_target: Array, q0: Array, q_rest: Array,
+    iterations: int, tol_m: float, tol_rad: float, damping: float, w_rot_m: float,
+    k_null: float, dq_max_rad: float,
+) -> tuple[Array, float, float, int]:  # fmt: skip
+    """`ArmChain.ik` (module docstring): q, the remaining errors [m], [rad], iterations."""
+    n = q0.shape[0]
+    q = np.minimum(np.maximum(q0, lower), upper)
+    lam2 = damping * damping
+    J, p, R = _jacobian(fixed, axes, z_axes, q)
+    e_p = p_target - p
+    e_r = np.empty(3)
+    e_r[0], e_r[1], e_r[2] = log_relative_of(R_target, R)
+    e, Jw, JJt, A = np.empty(6), np.empty((6, n)), np.empty((6, 6)), np.empty((6, 6))
+    used = 0
+    while True:
+        converged = _dot(e_p, e_p) < tol_m * tol_m and _dot(e_r, e_r) < tol_rad * tol_rad
+        if converged or used == iterations:
+            break
+        used += 1
+        Jw[:] = J
+        Jw[3:] *= w_rot_m
+        e[:3] = e_p
+        e[3:] = w_rot_m * e_r
+        for i in range(6):
+            for j in range(6):
+                s = 0.0
+                for k in range(n):
+                    s += Jw[i, k] * Jw[j, k]
+                JJt[i, j] = s
+        v = k_null * (q_rest - q)
+        # damped task step + rest-pose pull projected by the (near-)exact null space
+        A[:] = JJt
+        for i in range(6):
+            A[i, i] += lam2
+        dq = _transposed_times(Jw, _solve_spd(A, e)) + v
+        A[:] = JJt
+        for i in range(6):
+            A[i, i] += 1e-9
+        dq -= _transposed_times(Jw, _solve_spd(A, _times(Jw, v)))
+        dq = np.minimum(np.maximum(dq, -dq_max_rad), dq_max_rad)
+        q_new = np.minimum(np.maximum(q + dq, lower), upper)
+        if used == iterations:
+            # last step: predict the remaining error to first order instead of another
+            # forward-kinematics pass (exact up to O(|dq|^2))
+            de = _times(J, q_new - q)
+            e_p = e_p - de[:3]
+            e_r = e_r - de[3:]
+            q = q_new
+            break
+        q = q_new
+        J, p, R = _jacobian(fixed, axes, z_axes, q)
+        e_p = p_target - p
+        e_r[0], e_r[1], e_r[2] = log_relative_of(R_target, R)
+    return q, math.sqrt(_dot(e_p, e_p)), math.sqrt(_dot(e_r, e_r)), used
+
+
+@kernel
+def _dot(a: Array, b: Array) -> float:
+    s = 0.0
+    for i in range(a.shape[0]):
+        s += a[i] * b[i]
+    return s
+
+
+@kernel
+def _times(M: Array, x: Array) -> Array:
+    """M x (written out: BLAS for a 6x7 product costs more than the product)."""
+    out = np.zeros(M.shape[0])
+    for i in range(M.shape[0]):
+        for k in range(M.shape[1]):
+            out[i] += M[i, k] * x[k]
+    return out
+
+
+@kernel
+def _transposed_times(M: Array, x: Array) -> Array:
+    """M^T x."""
+    out = np.zeros(M.shape[1])
+    for k in range(M.shape[1]):
+        for i in range(M.shape[0]):
+            out[k] += M[i, k] * x[i]
+    return out
 
 
 @dataclass(frozen=True)
@@ -149,30 +298,7 @@ class ArmChain:
 
     def frames(self, q: Array) -> tuple[Array, Array, Array, Array]:
         """Joint origins (n, 3), joint axes (n, 3) in the base frame, tip p (3,), tip R (3, 3)."""
-        n = self.n
-        if self._z_axes:
-            c, s = np.cos(q), np.sin(q)
-            Rj = np.zeros((n, 4, 4))
-            Rj[:, 0, 0] = c
-            Rj[:, 0, 1] = -s
-            Rj[:, 1, 0] = s
-            Rj[:, 1, 1] = c
-            Rj[:, 2, 2] = 1.0
-            Rj[:, 3, 3] = 1.0
-        else:
-            Rj = np.zeros((n, 4, 4))
-            Rj[:, :3, :3] = so3_exp(self.axes * q[:, None])
-            Rj[:, 3, 3] = 1.0
-        A = self.fixed[:n] @ Rj
-        T = np.empty((n + 1, 4, 4))
-        T[0] = A[0]
-        for k in range(1, n):
-            T[k] = T[k - 1] @ A[k]
-        T[n] = T[n - 1] @ self.fixed[n]
-        origins = T[:n, :3, 3]
-        # a joint's axis in the base frame: its local axis rotated by the joint frame
-        axes = T[:n, :3, 2] if self._z_axes else np.einsum("kij,kj->ki", T[:n, :3, :3], self.axes)
-        return origins, axes, T[n, :3, 3].copy(), T[n, :3, :3].copy()
+        return _frames(self.fixed, self.axes, self._z_axes, _vector(q))
 
     def fk(self, q: Array) -> tuple[Array, Array]:
         """Tip pose (p [m], R) at joint positions q [rad]."""
@@ -181,16 +307,7 @@ class ArmChain:
 
     def jacobian(self, q: Array) -> tuple[Array, Array, Array]:
         """Geometric Jacobian (6, n) [linear; angular] of the tip, and the tip pose (p, R)."""
-        origins, axes, p, R = self.frames(q)
-        r = p - origins
-        a0, a1, a2 = axes[:, 0], axes[:, 1], axes[:, 2]
-        r0, r1, r2 = r[:, 0], r[:, 1], r[:, 2]
-        J = np.empty((6, self.n))
-        J[0] = a1 * r2 - a2 * r1  # axes x (p - origins), column per joint
-        J[1] = a2 * r0 - a0 * r2
-        J[2] = a0 * r1 - a1 * r0
-        J[3:] = axes.T
-        return J, p, R
+        return _jacobian(self.fixed, self.axes, self._z_axes, _vector(q))
 
     def ik(
         self,
@@ -222,38 +339,27 @@ class ArmChain:
             k_null: null-space pull per iteration (0..1).
             dq_max_rad: largest joint change per iteration [rad].
         """
-        q = np.clip(np.asarray(q0_rad, dtype=np.float64), self.lower_rad, self.upper_rad)
-        lam2 = damping * damping
-        I6 = np.eye(6)
-        used = 0
-        J, p, R = self.jacobian(q)
-        e_p = p_target_m - p
-        e_r = log_relative(R_target, R)
-        while True:
-            converged = float(e_p @ e_p) < tol_m * tol_m and float(e_r @ e_r) < tol_rad * tol_rad
-            if converged or used == iterations:
-                break
-            used += 1
-            Jw = J.copy()
-            Jw[3:] *= w_rot_m
-            e = np.concatenate([e_p, w_rot_m * e_r])
-            JJt = Jw @ Jw.T
-            v = k_null * (q_rest_rad - q)
-            # damped task step + rest-pose pull projected by the (near-)exact null space
-            dq = Jw.T @ _solve_spd(JJt + lam2 * I6, e) + v
-            dq -= Jw.T @ _solve_spd(JJt + 1e-9 * I6, Jw @ v)
-            dq = np.clip(dq, -dq_max_rad, dq_max_rad)
-            q_new = np.clip(q + dq, self.lower_rad, self.upper_rad)
-            if used == iterations:
-                # last step: predict the remaining error to first order instead of another
-                # forward-kinematics pass (exact up to O(|dq|^2))
-                de = J @ (q_new - q)
-                e_p = e_p - de[:3]
-                e_r = e_r - de[3:]
-                q = q_new
-                break
-            q = q_new
-            J, p, R = self.jacobian(q)
-            e_p = p_target_m - p
-            e_r = log_relative(R_target, R)
-        return IKResult(q, float(np.linalg.norm(e_p)), float(np.linalg.norm(e_r)), used)
+        q, err_m, err_rad, used = _ik(
+            self.fixed, self.axes, self._z_axes, self.lower_rad, self.upper_rad,
+            _vector(p_target_m), np.ascontiguousarray(R_target, dtype=np.float64),
+            _vector(q0_rad), _vector(q_rest_rad), int(iterations), float(tol_m),
+            float(tol_rad), float(damping), float(w_rot_m), float(k_null), float(dq_max_rad),
+        )  # fmt: skip
+        return IKResult(q, float(err_m), float(err_rad), int(used))
+
+
+def _vector(x: Array) -> Array:
+    """A float64, C-contiguous, writable 1-D copy or view (one compiled version)."""
+    a = np.asarray(x, dtype=np.float64)
+    if not (a.flags.c_contiguous and a.flags.writeable):
+        a = np.array(a, dtype=np.float64, order="C")
+    return a
+
+
+def compile_kernels() -> None:
+    """Compile (or load from the cache) this module's compiled functions: `dev.sh` runs this
+    at install, beside `arbitration.arbiters.compile_kernels`."""
+    fixed = np.repeat(np.eye(4)[None], 2, axis=0)
+    for axis in ([0.0, 0.0, 1.0], [1.0, 0.0, 0.0]):  # the two forms of `frames`
+        chain = ArmChain(fixed, np.array([axis]), np.array([-1.0]), np.array([1.0]), ("j",))
+        chain.ik(np.zeros(3), np.eye(3), np.zeros(1), np.zeros(1))
