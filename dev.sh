@@ -51,7 +51,11 @@ sync() {
     # --compile-bytecode: every command starts without compiling its libraries again where
     # Python cannot cache bytecode (PYTHONDONTWRITEBYTECODE=1, as containers often set; ~3 s
     # of each `dsteleop sim` run here went to compiling matplotlib and scipy).
-    "$TOOLS/bin/uv" sync --locked --compile-bytecode --python "$(command -v "$py")" --quiet
+    # The interpreter's own path, not a launcher's (a pyenv shim): uv compares it with the
+    # one .venv was made with, and on a mismatch deletes and rebuilds .venv, every run.
+    local interpreter
+    interpreter=$("$py" -c 'import sys; print(sys.executable)')
+    "$TOOLS/bin/uv" sync --locked --compile-bytecode --python "$interpreter" --quiet
     # The arbitration kernel and the arm's IK are compiled by numba; compile them now (~1 min
     # the first time, then loaded from the cache in under a second), not in a session.
     .venv/bin/python -c 'from dsteleop.arbitration.arbiters import compile_kernels as a
