@@ -44,7 +44,7 @@ from dsteleop.arbitration.allocation import (
 from dsteleop.arbitration.config import ArbitrationConfig
 from dsteleop.arbitration.jit import as_input, kernel
 from dsteleop.arbitration.policy import advance_into, human_action_into, robot_action_into
-from dsteleop.arbitration.se3 import HandState, diff_into, row
+from dsteleop.arbitration.se3 import HandState, batch_of, diff_into, row, state_input
 from dsteleop.errors import ConfigError
 
 Array = NDArray[np.float64]
@@ -231,10 +231,7 @@ class Arbiter:
         cfg = self.config
         states = (inp.X_human, inp.X_human_prev, inp.X_human_start, inp.X_current,
                   inp.X_prev, inp.X_start, inp.X_goal)  # fmt: skip
-        shapes = [X.batch for X in states]
-        first = shapes[0]
-        same = all(b == first for b in shapes[1:])
-        batch = first if same else tuple(np.broadcast_shapes(*shapes))
+        batch = batch_of(*(X.batch for X in states))
         if inp.X_ref is not None and inp.X_ref.batch not in (batch, ()):
             raise ConfigError(f"X_ref of batch {inp.X_ref.batch} for a tick of batch {batch}")
         F = inp.X_current.n_fingers
@@ -256,9 +253,7 @@ class Arbiter:
         dt = float(inp.dt)
         X_ref = inp.X_current if inp.X_ref is None else inp.X_ref
         history = np.zeros(D) if inp.history_term is None else inp.history_term
-        arrays: tuple[Any, ...] = tuple(
-            a for X in (*states, X_ref) for a in _state_arrays(X, batch)
-        )
+        arrays: tuple[Any, ...] = tuple(a for X in (*states, X_ref) for a in state_input(X, batch))
         out, p, R, g, alpha_w, B_w = _tick(  # type: ignore[call-arg]
             *arrays,
             as_input(history, (), 1)[0],
@@ -281,14 +276,6 @@ class Arbiter:
 #: Each mode's code in `RowModes.codes` (its index in `MODES`), as the kernel reads it.
 _MODE_CODE = {m: np.array([i], dtype=np.int8) for i, m in enumerate(MODES)}
 _DS_CODE, _S_CODE, _AUTONOMOUS_CODE = (MODES.index(m) for m in (Mode.DS, Mode.S, Mode.AUTONOMOUS))
-
-
-def _state_arrays(X: HandState, batch: tuple[int, ...]) -> tuple[Array, Array, Array]:
-    return (
-        as_input(X.position, batch, 1),
-        as_input(X.rotation, batch, 2),
-        as_input(X.openness, batch, 1),
-    )
 
 
 def _read_only(window: Array) -> Array:

@@ -42,11 +42,13 @@ from dsteleop.arbitration.config import ArbitrationConfig
 from dsteleop.arbitration.jit import as_input, kernel
 from dsteleop.arbitration.se3 import (
     HandState,
+    batch_of,
     integrate_into,
     log_relative_of,
     rotate_into,
     row,
     saturate_into,
+    state_input,
 )
 
 Array = NDArray[np.float64]
@@ -121,11 +123,10 @@ def advance_reference(
 ) -> HandState:
     """Eq (2) on the bounded reference, for states in the usual layout, U (..., 6 + F)."""
     U = np.asarray(U, dtype=np.float64)
-    batch = tuple(np.broadcast_shapes(X_ref.batch, X_current.batch, U.shape[:-1]))
+    batch = batch_of(X_ref.batch, X_current.batch, U.shape[:-1])
+    p_cur, R_cur, _ = state_input(X_current, batch)
     p, R, g = _advance_batch(
-        as_input(X_ref.position, batch, 1), as_input(X_ref.rotation, batch, 2),
-        as_input(X_ref.openness, batch, 1), as_input(X_current.position, batch, 1),
-        as_input(X_current.rotation, batch, 2), as_input(U, batch, 1), float(dt),
+        *state_input(X_ref, batch), p_cur, R_cur, as_input(U, batch, 1), float(dt),
         float(cfg.max_lead_m), float(cfg.max_lead_rad), math.prod(batch),
     )  # fmt: skip
     return HandState(p.reshape(*batch, 3), R.reshape(*batch, 3, 3), g.reshape(*batch, -1))

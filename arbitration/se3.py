@@ -313,14 +313,16 @@ def _saturate_batch(U: Array, v_max: Array) -> Array:
 # --- the usual layout ---------------------------------------------------------------------
 
 
-def _batch_of(*shapes: tuple[int, ...]) -> tuple[int, ...]:
+def batch_of(*shapes: tuple[int, ...]) -> tuple[int, ...]:
+    """The batch shape the given ones broadcast to (checked cheaply when all are equal)."""
     first = shapes[0]
     if all(s == first for s in shapes[1:]):
         return first
     return tuple(np.broadcast_shapes(*shapes))
 
 
-def _state_input(X: HandState, batch: tuple[int, ...]) -> tuple[Array, Array, Array]:
+def state_input(X: HandState, batch: tuple[int, ...]) -> tuple[Array, Array, Array]:
+    """A state's three arrays for a compiled function of a batch `batch` (`jit.as_input`)."""
     return (
         as_input(X.position, batch, 1),
         as_input(X.rotation, batch, 2),
@@ -354,24 +356,24 @@ def so3_log(R: Array) -> Array:
 
 def log_relative(Ra: Array, Rb: Array) -> Array:
     """so3_log(Ra Rb^T), (..., 3, 3) each -> (..., 3), without forming the product."""
-    batch = _batch_of(np.shape(Ra)[:-2], np.shape(Rb)[:-2])
+    batch = batch_of(np.shape(Ra)[:-2], np.shape(Rb)[:-2])
     a, b = as_input(Ra, batch, 2), as_input(Rb, batch, 2)
     return _log_relative_batch(a, b, math.prod(batch)).reshape(*batch, 3)
 
 
 def diff(A: HandState, B: HandState) -> Array:
     """Difference A - B of two hand states as a (..., 6 + F) vector (module docstring)."""
-    batch = _batch_of(A.batch, B.batch)
-    out = _diff_batch(*_state_input(A, batch), *_state_input(B, batch), math.prod(batch))
+    batch = batch_of(A.batch, B.batch)
+    out = _diff_batch(*state_input(A, batch), *state_input(B, batch), math.prod(batch))
     return out.reshape(*batch, out.shape[-1])
 
 
 def integrate(X: HandState, U: Array, dt: float) -> HandState:
     """Eq (2): apply the velocity U (..., 6 + F) to X for dt [s]."""
     U = np.asarray(U, dtype=np.float64)
-    batch = _batch_of(X.batch, U.shape[:-1])
+    batch = batch_of(X.batch, U.shape[:-1])
     p, R, g = _integrate_batch(
-        *_state_input(X, batch), as_input(U, batch, 1), float(dt), math.prod(batch)
+        *state_input(X, batch), as_input(U, batch, 1), float(dt), math.prod(batch)
     )
     return HandState(p.reshape(*batch, 3), R.reshape(*batch, 3, 3), g.reshape(*batch, -1))
 
