@@ -77,17 +77,24 @@ def allocation_rotation(e: float, kappa: float) -> float:
 
 
 @kernel
-def unit_directions_into(d: Array, threshold: Array, out: Array) -> None:
-    """u(a, b) of eq (6) from d = diff(a, b) (6 + F,): each group over its norm, 0 below
-    the group's threshold (`threshold[group start]`)."""
-    D = d.shape[0]
-    for start, stop in ((0, 3), (3, 6), (6, D)):
-        if stop <= start:
-            continue
-        n = group_norm(d, start, stop)
-        ok = n >= threshold[start]
-        for i in range(start, stop):
-            out[i] = d[i] / n if ok else 0.0
+def unit_directions_into(d: Array, a: int, threshold: Array, out: Array, m: int) -> None:
+    """u(a, b) of eq (6) into out[m] from d[a] = diff(a, b) (6 + F,): each group over its
+    norm, 0 below the group's threshold (`threshold[group start]`)."""
+    D = d.shape[1]
+    _unit_into(d, a, 0, 3, threshold[0], out, m)
+    _unit_into(d, a, 3, 6, threshold[3], out, m)
+    if D > 6:
+        _unit_into(d, a, 6, D, threshold[6], out, m)
+
+
+@kernel
+def _unit_into(d: Array, a: int, start: int, stop: int, threshold: float, out: Array,
+               m: int) -> None:  # fmt: skip
+    """One group of `unit_directions_into`."""
+    n = group_norm(d, a, start, stop)
+    ok = n >= threshold
+    for i in range(start, stop):
+        out[m, i] = d[a, i] / n if ok else 0.0
 
 
 @kernel
@@ -106,7 +113,7 @@ def willingness_of(psi_human: float, psi_robot: float, p: float, q: float, b: fl
     # z = 0 gives B = 0 (p > 1); the floor keeps log finite and exp underflows to exactly 0.
     z = max(abs(psi_human) / sigma, 1e-300)
     zm = (p - 1.0) / (q + 1.0)
-    return math.exp((p - 1.0) * math.log(z / zm) - (p + q) * (math.log1p(z) - math.log1p(zm)))
+    return math.exp((p - 1.0) * math.log(z / zm) - (p + q) * math.log((1.0 + z) / (1.0 + zm)))
 
 
 @kernel
@@ -176,9 +183,10 @@ def expected_allocation(
 
 @kernel
 def _unit_directions_rows(d: Array, threshold: Array) -> Array:
+    """u of each row of d (N, 6 + F)."""
     out = np.empty_like(d)
-    for n in range(d.shape[1]):
-        unit_directions_into(d[:, n], threshold, out[:, n])
+    for n in range(d.shape[0]):
+        unit_directions_into(d, n, threshold, out, n)
     return out
 
 
@@ -186,9 +194,8 @@ def unit_directions(d: Array, threshold: Array) -> Array:
     """u(a, b) of eq (6) from d = diff(a, b) (6 + F, ...): each group over its norm, 0 below
     the group's threshold (`threshold[group start]`)."""
     shape, (dd,) = _flat(d)
-    return _unit_directions_rows(dd, np.ascontiguousarray(threshold, dtype=np.float64)).reshape(
-        shape
-    )
+    thr = np.ascontiguousarray(threshold, dtype=np.float64)
+    return _unit_directions_rows(np.ascontiguousarray(dd.T), thr).T.reshape(shape)
 
 
 def expected_speed_change(

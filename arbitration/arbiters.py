@@ -43,8 +43,15 @@ from dsteleop.arbitration.allocation import (
 )
 from dsteleop.arbitration.config import ArbitrationConfig
 from dsteleop.arbitration.jit import as_input, kernel
-from dsteleop.arbitration.policy import advance_into, human_action_into, robot_action_into
-from dsteleop.arbitration.se3 import HandState, batch_of, diff_into, row, state_input
+from dsteleop.arbitration.policy import bound_into, human_action_into, robot_action_into
+from dsteleop.arbitration.se3 import (
+    HandState,
+    batch_of,
+    diff_into,
+    integrate_into,
+    row,
+    state_input,
+)
 from dsteleop.errors import ConfigError
 
 Array = NDArray[np.float64]
@@ -276,6 +283,8 @@ class Arbiter:
 #: Each mode's code in `RowModes.codes` (its index in `MODES`), as the kernel reads it.
 _MODE_CODE = {m: np.array([i], dtype=np.int8) for i, m in enumerate(MODES)}
 _DS_CODE, _S_CODE, _AUTONOMOUS_CODE = (MODES.index(m) for m in (Mode.DS, Mode.S, Mode.AUTONOMOUS))
+#: Rows of the kernel's scratch array of differences.
+_GOAL_H, _GOAL_R, _PREV_H, _PREV_R, _START_H, _START_R = range(6)
 
 
 def _read_only(window: Array) -> Array:
@@ -351,48 +360,40 @@ def _tick(
         new_B[: W - 1] = B_window[1:]
     else:  # unused
         new_alpha, new_B = np.empty((0, 0, 0)), np.empty((0, 0, 0))
-    d_goal_h, d_goal_r = np.empty(D), np.empty(D)
-    d_prev_h, d_prev_r = np.empty(D), np.empty(D)
-    d_start_h, d_start_r = np.empty(D), np.empty(D)
-    u_prev, u_start = np.empty(D), np.empty(D)
+    # Rows of the scratch arrays: the six differences (to the goal, to the previous state,
+    # to the start, per agent) and the two unit directions of eq (6).
+    d, u = np.empty((6, D)), np.empty((2, D))
     for m in range(M):
         h, hp, hs = row(Hp.shape[0], m), row(Pp.shape[0], m), row(Sp.shape[0], m)
         c, cp, cs = row(Cp.shape[0], m), row(Qp.shape[0], m), row(Tp.shape[0], m)
         gl, rf = row(Gp.shape[0], m), row(Rp.shape[0], m)
-        H = (Hp[h], HR[row(HR.shape[0], m)], Hg[row(Hg.shape[0], m)])
-        C = (Cp[c], CR[row(CR.shape[0], m)], Cg[row(Cg.shape[0], m)])
-        G = (Gp[gl], GR[row(GR.shape[0], m)], Gg[row(Gg.shape[0], m)])
-        Cs_p, Cs_g = Tp[cs], Tg[row(Tg.shape[0], m)]
-        # The six differences: to the goal, to the previous state, to the start, per agent.
-        diff_into(G[0], G[1], G[2], H[0], H[1], H[2], d_goal_h)
-        diff_into(G[0], G[1], G[2], C[0], C[1], C[2], d_goal_r)
-        diff_into(H[0], H[1], H[2], Pp[hp], PR[row(PR.shape[0], m)], Pg[row(Pg.shape[0], m)],
-                  d_prev_h)  # fmt: skip
-        diff_into(C[0], C[1], C[2], Qp[cp], QR[row(QR.shape[0], m)], Qg[row(Qg.shape[0], m)],
-                  d_prev_r)  # fmt: skip
-        diff_into(H[0], H[1], H[2], Sp[hs], SR[row(SR.shape[0], m)], Sg[row(Sg.shape[0], m)],
-                  d_start_h)  # fmt: skip
-        diff_into(C[0], C[1], C[2], Cs_p, TR[row(TR.shape[0], m)], Cs_g, d_start_r)
+        diff_into(Gp, GR, Gg, gl, Hp, HR, Hg, h, d, _GOAL_H)
+        diff_into(Gp, GR, Gg, gl, Cp, CR, Cg, c, d, _GOAL_R)
+        diff_into(Hp, HR, Hg, h, Pp, PR, Pg, hp, d, _PREV_H)
+        diff_into(Cp, CR, Cg, c, Qp, QR, Qg, cp, d, _PREV_R)
+        diff_into(Hp, HR, Hg, h, Sp, SR, Sg, hs, d, _START_H)
+        diff_into(Cp, CR, Cg, c, Tp, TR, Tg, cs, d, _START_R)
         # The two actions (policy.py).
-        human_action_into(d_prev_h, dt, v_max, U_h[m])
-        robot_action_into(d_goal_r, gains, v_max, U_r[m])
+        human_action_into(d, _PREV_H, dt, v_max, U_h, m)
+        robot_action_into(d, _GOAL_R, gains, v_max, U_r, m)
         # Eq (4)/(5): P(H), P(R); the goal-start distances are the robot's (its start).
         for i in range(D):
             if 3 <= i < 6:
-                P_h[m, i] = allocation_rotation(d_goal_h[i], kappa)
-                P_r[m, i] = allocation_rotation(d_goal_r[i], kappa)
+                P_h[m, i] = allocation_rotation(d[_GOAL_H, i], kappa)
+                P_r[m, i] = allocation_rotation(d[_GOAL_R, i], kappa)
             else:
-                d_gs = G[0][i] - Cs_p[i] if i < 3 else G[2][i - 6] - Cs_g[i - 6]
-                P_h[m, i] = allocation_linear(d_goal_h[i], d_gs, floor[i])
-                P_r[m, i] = allocation_linear(d_goal_r[i], d_gs, floor[i])
-        # Eq (6): psi per agent, its own states; eq (7): B.
-        for agent in range(2):
-            U_a = U_h[m] if agent == 0 else U_r[m]
-            psi_a = psi_h[m] if agent == 0 else psi_r[m]
-            unit_directions_into(d_prev_h if agent == 0 else d_prev_r, still_step, u_prev)
-            unit_directions_into(d_start_h if agent == 0 else d_start_r, still_offset, u_start)
-            for i in range(D):
-                psi_a[i] = speed_change_of(U_a[i], v_max[i], u_prev[i], u_start[i], history[i])
+                d_gs = Gp[gl, i] - Tp[cs, i] if i < 3 else Gg[gl, i - 6] - Tg[cs, i - 6]
+                P_h[m, i] = allocation_linear(d[_GOAL_H, i], d_gs, floor[i])
+                P_r[m, i] = allocation_linear(d[_GOAL_R, i], d_gs, floor[i])
+        # Eq (6): psi per agent, from its own states; eq (7): B.
+        unit_directions_into(d, _PREV_H, still_step, u, 0)
+        unit_directions_into(d, _START_H, still_offset, u, 1)
+        for i in range(D):
+            psi_h[m, i] = speed_change_of(U_h[m, i], v_max[i], u[0, i], u[1, i], history[i])
+        unit_directions_into(d, _PREV_R, still_step, u, 0)
+        unit_directions_into(d, _START_R, still_offset, u, 1)
+        for i in range(D):
+            psi_r[m, i] = speed_change_of(U_r[m, i], v_max[i], u[0, i], u[1, i], history[i])
         for i in range(D):
             B[m, i] = willingness_of(psi_h[m, i], psi_r[m, i], p, q, b, psi_floor)
         # Alpha: eq (8) on the windows (DS), eq (3) (S), or fixed.
@@ -416,8 +417,8 @@ def _tick(
         if code == _S_CODE:
             l1_cur = l1_start = 0.0
             for i in range(3):
-                l1_cur += abs(G[0][i] - C[0][i])
-                l1_start += abs(G[0][i] - Cs_p[i])
+                l1_cur += abs(Gp[gl, i] - Cp[c, i])
+                l1_start += abs(Gp[gl, i] - Tp[cs, i])
             a_s = standard_alpha_of(l1_cur, l1_start, floor_m)
             for i in range(D):
                 alpha[m, i] = a_s
@@ -427,10 +428,9 @@ def _tick(
         # Eq (1), then eq (2) from the reference.
         for i in range(D):
             U_out[m, i] = alpha[m, i] * U_r[m, i] + (1.0 - alpha[m, i]) * U_h[m, i]
-        advance_into(
-            Rp[rf], RR[row(RR.shape[0], m)], Rg[row(Rg.shape[0], m)], C[0], C[1],
-            U_out[m], dt, bounded, max_lead_m, max_lead_rad, next_p[m], next_R[m], next_g[m],
-        )  # fmt: skip
+        integrate_into(Rp, RR, Rg, rf, U_out, m, dt, next_p, next_R, next_g, m)
+        if bounded:
+            bound_into(Cp, CR, c, max_lead_m, max_lead_rad, next_p, next_R, m)
     return out, next_p, next_R, next_g, new_alpha, new_B
 
 

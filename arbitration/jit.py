@@ -13,8 +13,16 @@ edit. The cache is under ~/.cache/dsteleop/numba (or $XDG_CACHE_HOME), or in $NU
 when that is set.
 
 Conventions for the compiled functions: arguments are float64 arrays, C-contiguous and
-writable (`as_input`), and Python floats and ints; a function of one state or one dimension
-takes scalars or small views, and its batch form loops over a flattened batch.
+writable (`as_input`), and Python floats and ints; a function of one dimension takes scalars,
+a function of one state takes the batch's arrays and the state's row in them (it reads row
+`a` and writes row `m`), and its batch form loops over a flattened batch.
+
+What makes a compiled tick slow is not what makes numpy slow. Every slice of an array
+(`R[m]`) is a new array whose reference count compiled code updates with an atomic
+instruction, and an array that a helper uses after a branch stays counted for every call:
+with views of each row the kernel spent a third of a tick on reference counts. So functions
+of one state index rows instead of slicing them, and read their rows before they branch
+(`se3.log_relative_of` forms the product, then takes its logarithm from the 9 floats).
 """
 
 from __future__ import annotations
@@ -55,8 +63,7 @@ _numba = _configure()
 
 #: The decorator of every compiled function: nopython, cached, releases the GIL (a viewer or
 #: a recorder thread runs while the loop computes), numpy's float semantics (x / 0 is inf or
-#: nan, as in the rest of the code, not an exception), and inlined into its callers (a
-#: helper of one state takes views of its caller's rows; inlined, they cost nothing, where a
+#: nan, as in the rest of the code, not an exception), and inlined into its callers (where a
 #: call costs more than the maths: a tick of 1000 rows took 3.2 ms instead of 2.0). Inlining
 #: makes the first compilation long (~35 s for the package on a 2-core Xeon), once.
 _compile = _numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -69,14 +76,17 @@ def kernel(fn: _F) -> _F:
     return cast(_F, _compile(fn))
 
 
-def as_input(x: Any, batch: tuple[int, ...], vector_axes: int) -> NDArray[np.float64]:
+def as_input(
+    x: Any, batch: tuple[int, ...], vector_axes: int, shared: bool = True
+) -> NDArray[np.float64]:
     """An array (..., *tail) broadcast to `batch`, flattened to (M', *tail), for a compiled
-    function: M' = 1 when it has no batch of its own (shared by every row), else M = prod(batch).
-    C-contiguous and writable, so that numba compiles one version of each function."""
+    function: M' = 1 when it has no batch of its own (one row shared by every row) and
+    `shared`, else M = prod(batch). C-contiguous and writable, so that numba compiles one
+    version of each function."""
     a = np.asarray(x, dtype=np.float64)
     lead = a.shape[: a.ndim - vector_axes]
     tail = a.shape[a.ndim - vector_axes :]
-    if lead != batch and math.prod(lead) != 1:
+    if lead != batch and not (shared and math.prod(lead) == 1):
         a = np.broadcast_to(a, (*batch, *tail))
     if not (a.flags.c_contiguous and a.flags.writeable):
         a = np.array(a, dtype=np.float64, order="C")

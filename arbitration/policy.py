@@ -26,8 +26,8 @@ integration, because one tick of saturated motion (v_max dt, w_max dt) cannot le
 bound when it is within it, as it is by default (8 mm, 0.03 rad against 3 cm, 0.25 rad);
 the kernel skips the bound in that case (`bound_needed`).
 
-The actions and eq (2) are compiled functions of one state (`jit.kernel`), which the
-arbitration kernel calls per row; `advance_reference` is their loop over a batch in the usual
+The actions, eq (2) and its bound are compiled functions of one state (`jit.kernel`), which
+the arbitration kernel calls per row; `advance_reference` is their loop over a batch in the usual
 layout, for the loop's halt ramp.
 """
 
@@ -55,43 +55,43 @@ Array = NDArray[np.float64]
 
 
 @kernel
-def robot_action_into(d_goal_current: Array, gains: Array, v_max: Array, out: Array) -> None:
-    """U_robot [m/s, rad/s, 1/s] (6 + F,) from d = diff(X_goal, X_current)."""
-    for i in range(d_goal_current.shape[0]):
-        out[i] = gains[i] * d_goal_current[i]
-    saturate_into(out, v_max, out)
+def robot_action_into(d_goal_current: Array, a: int, gains: Array, v_max: Array, out: Array,
+                      m: int) -> None:  # fmt: skip
+    """U_robot [m/s, rad/s, 1/s] (6 + F,) into out[m] from d = diff(X_goal, X_current), row a."""
+    for i in range(d_goal_current.shape[1]):
+        out[m, i] = gains[i] * d_goal_current[a, i]
+    saturate_into(out, m, v_max, out, m)
 
 
 @kernel
-def human_action_into(d_human_prev: Array, dt: float, v_max: Array, out: Array) -> None:
-    """U_human [m/s, rad/s, 1/s] (6 + F,) from d = diff(X_human, X_human_prev)."""
-    for i in range(d_human_prev.shape[0]):
-        out[i] = d_human_prev[i] / dt
-    saturate_into(out, v_max, out)
+def human_action_into(d_human_prev: Array, a: int, dt: float, v_max: Array, out: Array,
+                      m: int) -> None:  # fmt: skip
+    """U_human [m/s, rad/s, 1/s] (6 + F,) into out[m] from d = diff(X_human, X_human_prev),
+    row a."""
+    for i in range(d_human_prev.shape[1]):
+        out[m, i] = d_human_prev[a, i] / dt
+    saturate_into(out, m, v_max, out, m)
 
 
 @kernel
-def advance_into(
-    p_ref: Array, R_ref: Array, g_ref: Array,
-    p_cur: Array, R_cur: Array,
-    U: Array, dt: float, bounded: bool, max_lead_m: float, max_lead_rad: float,
-    out_p: Array, out_R: Array, out_g: Array,
+def bound_into(
+    p_cur: Array, R_cur: Array, c: int, max_lead_m: float, max_lead_rad: float,
+    out_p: Array, out_R: Array, m: int,
 ) -> None:  # fmt: skip
-    """Eq (2) on the bounded reference (module docstring), one state; `bounded` False skips
-    the bound (a kinematic plant, whose reference is the achieved state)."""
-    integrate_into(p_ref, R_ref, g_ref, U, dt, out_p, out_R, out_g)
-    if not bounded:
-        return
-    d0, d1, d2 = out_p[0] - p_cur[0], out_p[1] - p_cur[1], out_p[2] - p_cur[2]
+    """The bound of eq (2) (module docstring): the integrated reference in row m of out_p and
+    out_R, brought within the leads of the achieved state in row c."""
+    d0 = out_p[m, 0] - p_cur[c, 0]
+    d1 = out_p[m, 1] - p_cur[c, 1]
+    d2 = out_p[m, 2] - p_cur[c, 2]
     scale = min(1.0, max_lead_m / max(math.sqrt(d0 * d0 + d1 * d1 + d2 * d2), 1e-300))
-    out_p[0] = p_cur[0] + d0 * scale
-    out_p[1] = p_cur[1] + d1 * scale
-    out_p[2] = p_cur[2] + d2 * scale
-    e0, e1, e2 = log_relative_of(out_R, R_cur)
+    out_p[m, 0] = p_cur[c, 0] + d0 * scale
+    out_p[m, 1] = p_cur[c, 1] + d1 * scale
+    out_p[m, 2] = p_cur[c, 2] + d2 * scale
+    e0, e1, e2 = log_relative_of(out_R, m, R_cur, c)
     a = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
     if a > max_lead_rad:
         k = max_lead_rad / a
-        rotate_into(e0 * k, e1 * k, e2 * k, R_cur, out_R)
+        rotate_into(e0 * k, e1 * k, e2 * k, R_cur, c, out_R, m)
 
 
 def bound_needed(has_reference: bool, dt: float, cfg: ArbitrationConfig) -> bool:
@@ -109,12 +109,11 @@ def _advance_batch(
 ) -> tuple[Array, Array, Array]:  # fmt: skip
     out_p, out_R, out_g = np.empty((M, 3)), np.empty((M, 3, 3)), np.empty((M, g_ref.shape[1]))
     for m in range(M):
-        advance_into(
-            p_ref[row(p_ref.shape[0], m)], R_ref[row(R_ref.shape[0], m)],
-            g_ref[row(g_ref.shape[0], m)], p_cur[row(p_cur.shape[0], m)],
-            R_cur[row(R_cur.shape[0], m)], U[row(U.shape[0], m)], dt, True, max_lead_m,
-            max_lead_rad, out_p[m], out_R[m], out_g[m],
+        integrate_into(
+            p_ref, R_ref, g_ref, row(p_ref.shape[0], m), U, row(U.shape[0], m), dt,
+            out_p, out_R, out_g, m,
         )  # fmt: skip
+        bound_into(p_cur, R_cur, row(p_cur.shape[0], m), max_lead_m, max_lead_rad, out_p, out_R, m)
     return out_p, out_R, out_g
 
 

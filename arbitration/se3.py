@@ -22,8 +22,8 @@ Exp and log (Rodrigues):
 with their series below 1e-4 rad. Within 1e-3 rad of pi, sin(theta) loses the axis; it then
 comes from the symmetric part, a a^T = ((R + R^T)/2 - cos(theta) I) / (1 - cos(theta)): the
 column of its largest diagonal entry, signed to agree with vee(R - R^T). The logarithm of a
-relative rotation R_A R_B^T needs only the trace and the skew part of the product, sums of
-elementwise products of the two matrices; only the rare pairs near pi build the product.
+relative rotation R_A R_B^T forms the product (27 multiplications, as many as its trace and
+skew part alone would take), then works on its 9 entries.
 
 Layout. The public functions take the usual layout, vectors last: (..., 3), (..., 3, 3),
 (..., 6 + F), with any batch shape (broadcast). The maths is written once, for one state,
@@ -128,7 +128,11 @@ def stack(states: Sequence[HandState], axis: int = 0) -> HandState:
     )
 
 
-# --- compiled: one state --------------------------------------------------------------
+# --- compiled: one state ---------------------------------------------------------------
+#
+# A function of one state takes the batch arrays and the state's row in them: it reads row
+# `a` of its inputs, (rows, 3), (rows, 3, 3), (rows, F), (rows, 6 + F), and writes row `m`
+# of its outputs. Rows are indexed, never sliced (`jit` says why).
 
 
 @kernel
@@ -157,30 +161,47 @@ def exp_of(w0: float, w1: float, w2: float) -> tuple[float, ...]:
 
 
 @kernel
-def rotate_into(w0: float, w1: float, w2: float, R: Array, out: Array) -> None:
-    """out (3, 3) = exp(w) R; out must not be R."""
+def rotate_into(w0: float, w1: float, w2: float, R: Array, a: int, out: Array, m: int) -> None:
+    """out[m] (3, 3) = exp(w) R[a]; out[m] must not be R[a]."""
     E = exp_of(w0, w1, w2)
     for i in range(3):
         for j in range(3):
-            out[i, j] = E[3 * i] * R[0, j] + E[3 * i + 1] * R[1, j] + E[3 * i + 2] * R[2, j]
+            out[m, i, j] = (
+                E[3 * i] * R[a, 0, j] + E[3 * i + 1] * R[a, 1, j] + E[3 * i + 2] * R[a, 2, j]
+            )
 
 
 @kernel
-def log_relative_of(Ra: Array, Rb: Array) -> tuple[float, float, float]:
-    """log(Ra Rb^T) (module docstring), as its 3 components.
+def log_relative_of(Ra: Array, a: int, Rb: Array, b: int) -> tuple[float, float, float]:
+    """log(Ra[a] Rb[b]^T) (module docstring), as its 3 components."""
+    return log_of(product_of(Ra, a, Rb, b))
 
-    trace(Ra Rb^T) = sum_ij a_ij b_ij and 2 vee(skew) = (m21 - m12, m02 - m20, m10 - m01)
-    with m_ij = sum_k a_ik b_jk; theta = atan2(|vee(skew)|, (trace - 1) / 2) keeps full
-    precision at 0 and at pi alike (an arccos of the trace alone loses half the digits near
-    both).
+
+@kernel
+def product_of(Ra: Array, a: int, Rb: Array, b: int) -> tuple[float, ...]:
+    """Ra[a] Rb[b]^T as its 9 entries, row by row."""
+    return (
+        _dot3(Ra, a, 0, Rb, b, 0), _dot3(Ra, a, 0, Rb, b, 1), _dot3(Ra, a, 0, Rb, b, 2),
+        _dot3(Ra, a, 1, Rb, b, 0), _dot3(Ra, a, 1, Rb, b, 1), _dot3(Ra, a, 1, Rb, b, 2),
+        _dot3(Ra, a, 2, Rb, b, 0), _dot3(Ra, a, 2, Rb, b, 1), _dot3(Ra, a, 2, Rb, b, 2),
+    )  # fmt: skip
+
+
+@kernel
+def _dot3(A: Array, a: int, i: int, B: Array, b: int, j: int) -> float:
+    """(A[a] B[b]^T)_ij: row i of A[a] dotted with row j of B[b]."""
+    return A[a, i, 0] * B[b, j, 0] + A[a, i, 1] * B[b, j, 1] + A[a, i, 2] * B[b, j, 2]
+
+
+@kernel
+def log_of(R: tuple[float, ...]) -> tuple[float, float, float]:
+    """log(R) (module docstring) of a rotation given as its 9 entries, row by row.
+
+    theta = atan2(|vee(R - R^T)| / 2, (trace R - 1) / 2) keeps full precision at 0 and at pi
+    alike (an arccos of the trace alone loses half the digits near both).
     """
-    tr = 0.0
-    for i in range(3):
-        tr += Ra[i, 0] * Rb[i, 0] + Ra[i, 1] * Rb[i, 1] + Ra[i, 2] * Rb[i, 2]
-    s0 = _dot3(Ra, 2, Rb, 1) - _dot3(Ra, 1, Rb, 2)
-    s1 = _dot3(Ra, 0, Rb, 2) - _dot3(Ra, 2, Rb, 0)
-    s2 = _dot3(Ra, 1, Rb, 0) - _dot3(Ra, 0, Rb, 1)
-    cos_t = min(max((tr - 1.0) * 0.5, -1.0), 1.0)
+    s0, s1, s2 = R[7] - R[5], R[2] - R[6], R[3] - R[1]
+    cos_t = min(max((R[0] + R[4] + R[8] - 1.0) * 0.5, -1.0), 1.0)
     sin_t = 0.5 * math.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
     theta = math.atan2(sin_t, cos_t)
     if theta <= math.pi - _NEAR_PI_RAD:
@@ -190,69 +211,75 @@ def log_relative_of(Ra: Array, Rb: Array) -> tuple[float, float, float]:
         else:
             half = 0.5 * theta / max(sin_t, 1e-300)
         return half * s0, half * s1, half * s2
-    # Near pi: the axis from the symmetric part of R = Ra Rb^T (module docstring): the
-    # column of its largest diagonal entry, signed to agree with vee(R - R^T).
+    # Near pi: the axis from the symmetric part (module docstring): the column of its
+    # largest diagonal entry, signed to agree with vee(R - R^T).
     best, k = -math.inf, 0
     for i in range(3):
-        d = (_dot3(Ra, i, Rb, i) - cos_t) / (1.0 - cos_t)
+        d = (R[4 * i] - cos_t) / (1.0 - cos_t)
         if d > best:
             best, k = d, i
     scale = 1.0 / (1.0 - cos_t) / math.sqrt(max(best, 1e-300))
-    a0 = (0.5 * (_dot3(Ra, 0, Rb, k) + _dot3(Ra, k, Rb, 0)) - (cos_t if k == 0 else 0.0)) * scale
-    a1 = (0.5 * (_dot3(Ra, 1, Rb, k) + _dot3(Ra, k, Rb, 1)) - (cos_t if k == 1 else 0.0)) * scale
-    a2 = (0.5 * (_dot3(Ra, 2, Rb, k) + _dot3(Ra, k, Rb, 2)) - (cos_t if k == 2 else 0.0)) * scale
+    a0 = (0.5 * (R[k] + R[3 * k]) - (cos_t if k == 0 else 0.0)) * scale
+    a1 = (0.5 * (R[3 + k] + R[3 * k + 1]) - (cos_t if k == 1 else 0.0)) * scale
+    a2 = (0.5 * (R[6 + k] + R[3 * k + 2]) - (cos_t if k == 2 else 0.0)) * scale
     if a0 * s0 + a1 * s1 + a2 * s2 < 0.0:
         theta = -theta
     return theta * a0, theta * a1, theta * a2
 
 
 @kernel
-def _dot3(A: Array, i: int, B: Array, j: int) -> float:
-    """(A B^T)_ij: row i of A dotted with row j of B."""
-    return A[i, 0] * B[j, 0] + A[i, 1] * B[j, 1] + A[i, 2] * B[j, 2]
-
-
-@kernel
-def diff_into(pa: Array, Ra: Array, ga: Array, pb: Array, Rb: Array, gb: Array, out: Array) -> None:
-    """out (6 + F,) = diff(A, B) = [p_A - p_B, log(R_A R_B^T), g_A - g_B]."""
+def diff_into(
+    pa: Array, Ra: Array, ga: Array, a: int,
+    pb: Array, Rb: Array, gb: Array, b: int,
+    out: Array, m: int,
+) -> None:  # fmt: skip
+    """out[m] (6 + F,) = diff(A, B) = [p_A - p_B, log(R_A R_B^T), g_A - g_B] of the states in
+    row a of A's arrays and row b of B's."""
     for i in range(3):
-        out[i] = pa[i] - pb[i]
-    out[3], out[4], out[5] = log_relative_of(Ra, Rb)
-    for f in range(ga.shape[0]):
-        out[6 + f] = ga[f] - gb[f]
+        out[m, i] = pa[a, i] - pb[b, i]
+    for f in range(ga.shape[1]):
+        out[m, 6 + f] = ga[a, f] - gb[b, f]
+    out[m, 3], out[m, 4], out[m, 5] = log_relative_of(Ra, a, Rb, b)
 
 
 @kernel
 def integrate_into(
-    p: Array, R: Array, g: Array, U: Array, dt: float, out_p: Array, out_R: Array, out_g: Array
-) -> None:
-    """Eq (2) for one state: p + v dt, exp(w dt) R, clip(g + gdot dt, 0, 1)."""
+    p: Array, R: Array, g: Array, a: int, U: Array, u: int, dt: float,
+    out_p: Array, out_R: Array, out_g: Array, m: int,
+) -> None:  # fmt: skip
+    """Eq (2) for one state, row a, by U[u]: p + v dt, exp(w dt) R, clip(g + gdot dt, 0, 1)."""
     for i in range(3):
-        out_p[i] = p[i] + U[i] * dt
-    rotate_into(U[3] * dt, U[4] * dt, U[5] * dt, R, out_R)
-    for f in range(g.shape[0]):
-        out_g[f] = min(max(g[f] + U[6 + f] * dt, 0.0), 1.0)
+        out_p[m, i] = p[a, i] + U[u, i] * dt
+    rotate_into(U[u, 3] * dt, U[u, 4] * dt, U[u, 5] * dt, R, a, out_R, m)
+    for f in range(g.shape[1]):
+        out_g[m, f] = min(max(g[a, f] + U[u, 6 + f] * dt, 0.0), 1.0)
 
 
 @kernel
-def group_norm(x: Array, start: int, stop: int) -> float:
-    """Euclidean norm of x[start:stop]."""
+def group_norm(x: Array, a: int, start: int, stop: int) -> float:
+    """Euclidean norm of x[a, start:stop]."""
     s = 0.0
     for i in range(start, stop):
-        s += x[i] * x[i]
+        s += x[a, i] * x[a, i]
     return math.sqrt(s)
 
 
 @kernel
-def saturate_into(U: Array, v_max: Array, out: Array) -> None:
-    """out (6 + F,) = U with translation and rotation scaled to |.| <= v_max[0], v_max[3] and
-    each finger clipped to +-v_max[6 + f] (out may be U)."""
-    for start in (0, 3):
-        scale = min(1.0, v_max[start] / max(group_norm(U, start, start + 3), 1e-300))
-        for i in range(start, start + 3):
-            out[i] = U[i] * scale
-    for i in range(6, U.shape[0]):
-        out[i] = min(max(U[i], -v_max[i]), v_max[i])
+def saturate_into(U: Array, a: int, v_max: Array, out: Array, m: int) -> None:
+    """out[m] (6 + F,) = U[a] with translation and rotation scaled to |.| <= v_max[0],
+    v_max[3] and each finger clipped to +-v_max[6 + f] (out[m] may be U[a])."""
+    _scale_into(U, a, 0, v_max[0], out, m)
+    _scale_into(U, a, 3, v_max[3], out, m)
+    for i in range(6, U.shape[1]):
+        out[m, i] = min(max(U[a, i], -v_max[i]), v_max[i])
+
+
+@kernel
+def _scale_into(U: Array, a: int, start: int, limit: float, out: Array, m: int) -> None:
+    """out[m, start:start + 3] = U[a, start:start + 3] scaled to a norm of at most `limit`."""
+    u0, u1, u2 = U[a, start], U[a, start + 1], U[a, start + 2]
+    scale = min(1.0, limit / max(math.sqrt(u0 * u0 + u1 * u1 + u2 * u2), 1e-300))
+    out[m, start], out[m, start + 1], out[m, start + 2] = u0 * scale, u1 * scale, u2 * scale
 
 
 # --- compiled: a batch (rows of the inputs as `jit.as_input` flattens them) ---------------
@@ -273,7 +300,7 @@ def _log_relative_batch(Ra: Array, Rb: Array, M: int) -> Array:
     out = np.empty((M, 3))
     for m in range(M):
         out[m, 0], out[m, 1], out[m, 2] = log_relative_of(
-            Ra[row(Ra.shape[0], m)], Rb[row(Rb.shape[0], m)]
+            Ra, row(Ra.shape[0], m), Rb, row(Rb.shape[0], m)
         )
     return out
 
@@ -282,10 +309,7 @@ def _log_relative_batch(Ra: Array, Rb: Array, M: int) -> Array:
 def _diff_batch(pa: Array, Ra: Array, ga: Array, pb: Array, Rb: Array, gb: Array, M: int) -> Array:
     out = np.empty((M, 6 + ga.shape[1]))
     for m in range(M):
-        a, b = row(pa.shape[0], m), row(pb.shape[0], m)
-        ra, rb = row(Ra.shape[0], m), row(Rb.shape[0], m)
-        fa, fb = row(ga.shape[0], m), row(gb.shape[0], m)
-        diff_into(pa[a], Ra[ra], ga[fa], pb[b], Rb[rb], gb[fb], out[m])
+        diff_into(pa, Ra, ga, row(pa.shape[0], m), pb, Rb, gb, row(pb.shape[0], m), out, m)
     return out
 
 
@@ -296,9 +320,8 @@ def _integrate_batch(
     out_p, out_R, out_g = np.empty((M, 3)), np.empty((M, 3, 3)), np.empty((M, g.shape[1]))
     for m in range(M):
         integrate_into(
-            p[row(p.shape[0], m)], R[row(R.shape[0], m)], g[row(g.shape[0], m)],
-            U[row(U.shape[0], m)], dt, out_p[m], out_R[m], out_g[m],
-        )  # fmt: skip
+            p, R, g, row(p.shape[0], m), U, row(U.shape[0], m), dt, out_p, out_R, out_g, m
+        )
     return out_p, out_R, out_g
 
 
@@ -306,7 +329,7 @@ def _integrate_batch(
 def _saturate_batch(U: Array, v_max: Array) -> Array:
     out = np.empty_like(U)
     for m in range(U.shape[0]):
-        saturate_into(U[m], v_max, out[m])
+        saturate_into(U, m, v_max, out, m)
     return out
 
 
@@ -322,11 +345,15 @@ def batch_of(*shapes: tuple[int, ...]) -> tuple[int, ...]:
 
 
 def state_input(X: HandState, batch: tuple[int, ...]) -> tuple[Array, Array, Array]:
-    """A state's three arrays for a compiled function of a batch `batch` (`jit.as_input`)."""
+    """A state's three arrays for a compiled function of a batch `batch` (`jit.as_input`),
+    all with M rows, or all with one if the state is shared by every row: one row index
+    reads the state."""
+    if math.prod(X.batch) == 1:
+        return as_input(X.position, (), 1), as_input(X.rotation, (), 2), as_input(X.openness, (), 1)
     return (
-        as_input(X.position, batch, 1),
-        as_input(X.rotation, batch, 2),
-        as_input(X.openness, batch, 1),
+        as_input(X.position, batch, 1, shared=False),
+        as_input(X.rotation, batch, 2, shared=False),
+        as_input(X.openness, batch, 1, shared=False),
     )
 
 

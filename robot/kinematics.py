@@ -150,7 +150,8 @@ def _ik(
     J, p, R = _jacobian(fixed, axes, z_axes, q)
     e_p = p_target - p
     e_r = np.empty(3)
-    e_r[0], e_r[1], e_r[2] = log_relative_of(R_target, R)
+    Rt = R_target.reshape((1, 3, 3))  # se3's functions of one state read row 0 of a batch
+    e_r[0], e_r[1], e_r[2] = log_relative_of(Rt, 0, R.reshape((1, 3, 3)), 0)
     e, Jw, JJt, A = np.empty(6), np.empty((6, n)), np.empty((6, 6)), np.empty((6, 6))
     used = 0
     while True:
@@ -191,7 +192,7 @@ def _ik(
         q = q_new
         J, p, R = _jacobian(fixed, axes, z_axes, q)
         e_p = p_target - p
-        e_r[0], e_r[1], e_r[2] = log_relative_of(R_target, R)
+        e_r[0], e_r[1], e_r[2] = log_relative_of(Rt, 0, R.reshape((1, 3, 3)), 0)
     return q, math.sqrt(_dot(e_p, e_p)), math.sqrt(_dot(e_r, e_r)), used
 
 
