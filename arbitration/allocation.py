@@ -78,7 +78,7 @@ def allocation_rotation(e: float, kappa: float) -> float:
 
 @kernel
 def unit_directions_into(d: Array, a: int, threshold: Array, out: Array, m: int) -> None:
-    """u(a, b) of eq (6) into out[m] from d[a] = diff(a, b) (6 + F,): each group over its
+    """u(A, B) of eq (6) into out[m] from row a of d, diff(A, B) (6 + F,): each group over its
     norm, 0 below the group's threshold (`threshold[group start]`)."""
     D = d.shape[1]
     _unit_into(d, a, 0, 3, threshold[0], out, m)

@@ -276,7 +276,10 @@ def saturate_into(U: Array, a: int, v_max: Array, out: Array, m: int) -> None:
 
 @kernel
 def _scale_into(U: Array, a: int, start: int, limit: float, out: Array, m: int) -> None:
-    """out[m, start:start + 3] = U[a, start:start + 3] scaled to a norm of at most `limit`."""
+    """out[m, start:start + 3] = U[a, start:start + 3] scaled to a norm of at most `limit`.
+
+    The norm is written out rather than taken from `group_norm`: the row is read into floats
+    before the branch of min/max, so out[m] may be U[a] (`jit` says why reads come first)."""
     u0, u1, u2 = U[a, start], U[a, start + 1], U[a, start + 2]
     scale = min(1.0, limit / max(math.sqrt(u0 * u0 + u1 * u1 + u2 * u2), 1e-300))
     out[m, start], out[m, start + 1], out[m, start + 2] = u0 * scale, u1 * scale, u2 * scale
@@ -382,7 +385,7 @@ def so3_log(R: Array) -> Array:
 
 
 def log_relative(Ra: Array, Rb: Array) -> Array:
-    """so3_log(Ra Rb^T), (..., 3, 3) each -> (..., 3), without forming the product."""
+    """so3_log(Ra Rb^T), (..., 3, 3) each -> (..., 3)."""
     batch = batch_of(np.shape(Ra)[:-2], np.shape(Rb)[:-2])
     a, b = as_input(Ra, batch, 2), as_input(Rb, batch, 2)
     return _log_relative_batch(a, b, math.prod(batch)).reshape(*batch, 3)
