@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from dsteleop.arbitration.jit import kernel
+from dsteleop.arbitration.jit import as_input, kernel
 from dsteleop.arbitration.se3 import exp_of, log_relative_of
 from dsteleop.errors import InputError
 
@@ -174,11 +174,11 @@ def _ik(
         A[:] = JJt
         for i in range(6):
             A[i, i] += lam2
-        dq = _transposed_times(Jw, _solve_spd(A, e)) + v
+        dq = _times(Jw.T, _solve_spd(A, e)) + v
         A[:] = JJt
         for i in range(6):
             A[i, i] += 1e-9
-        dq -= _transposed_times(Jw, _solve_spd(A, _times(Jw, v)))
+        dq -= _times(Jw.T, _solve_spd(A, _times(Jw, v)))
         dq = np.minimum(np.maximum(dq, -dq_max_rad), dq_max_rad)
         q_new = np.minimum(np.maximum(q + dq, lower), upper)
         if used == iterations:
@@ -211,16 +211,6 @@ def _times(M: Array, x: Array) -> Array:
     for i in range(M.shape[0]):
         for k in range(M.shape[1]):
             out[i] += M[i, k] * x[k]
-    return out
-
-
-@kernel
-def _transposed_times(M: Array, x: Array) -> Array:
-    """M^T x."""
-    out = np.zeros(M.shape[1])
-    for k in range(M.shape[1]):
-        for i in range(M.shape[0]):
-            out[k] += M[i, k] * x[i]
     return out
 
 
@@ -351,10 +341,7 @@ class ArmChain:
 
 def _vector(x: Array) -> Array:
     """A float64, C-contiguous, writable 1-D copy or view (one compiled version)."""
-    a = np.asarray(x, dtype=np.float64)
-    if not (a.flags.c_contiguous and a.flags.writeable):
-        a = np.array(a, dtype=np.float64, order="C")
-    return a
+    return as_input(x, (), 1)[0]
 
 
 def compile_kernels() -> None:
