@@ -1,0 +1,64 @@
+"""The operator's world: the impairments under which a simulated person teleoperates.
+
+The paper's own study names three impairments that make assistance worth having (Section
+IV-C): noise on the robot's goal, an induced teleoperation delay, and a single camera view in
+which depth is hard to judge. Each is one mechanism with its own parameters here; the study,
+the sweep (`dsteleop sim --sweep`) and the demo person read the same object. docs/operator.md
+gives each parameter's source; they are fixed from the literature, never tuned to a result.
+
+    goal noise     the robot's goal = the true goal + N(0, goal_sigma_m^2) per position axis
+    delay          the operator's command reaches the robot `delay_s` late, and the robot's
+                   image reaches the operator `delay_s` late (a round trip of 2 delay_s on
+                   top of the person's own visual feedback delay)
+    single view    the operator perceives the robot's position through one camera: the
+                   perception error along the camera's viewing axis (`view_axis`, a unit
+                   vector in the robot base frame) has sd `depth_sigma_m`, across it
+                   `lateral_sigma_m`
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, replace
+from typing import Any
+
+from dsteleop.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class Impairments:
+    """The world a simulated operator works in (module docstring). Validated at construction.
+
+    Attributes:
+        goal_sigma_m: sd of the robot's goal position per axis [m].
+        delay_s: one-way teleoperation delay [s]: command to robot, and image to operator.
+        depth_sigma_m: sd of the perceived robot position along the camera's viewing axis [m].
+        lateral_sigma_m: sd of the perceived robot position across the viewing axis [m].
+        view_axis: the camera's viewing direction in the robot base frame (unit 3-vector).
+    """
+
+    goal_sigma_m: float = 0.02
+    delay_s: float = 0.0
+    depth_sigma_m: float = 0.002
+    lateral_sigma_m: float = 0.002
+    view_axis: tuple[float, float, float] = (1.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        for name in ("goal_sigma_m", "delay_s", "depth_sigma_m", "lateral_sigma_m"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not (
+                isinstance(v, (int, float)) and math.isfinite(v) and v >= 0
+            ):
+                raise ConfigError(f"{name} must be a number >= 0, got {v!r}")
+        axis = tuple(float(a) for a in self.view_axis)
+        n = math.sqrt(sum(a * a for a in axis))
+        if len(axis) != 3 or not math.isfinite(n) or abs(n - 1.0) > 1e-6:
+            raise ConfigError(f"view_axis must be a unit 3-vector, got {self.view_axis!r}")
+
+    def replace(self, **changes: Any) -> Impairments:
+        return replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["view_axis"] = list(self.view_axis)
+        return d
