@@ -9,6 +9,7 @@ the paper's equation numbers (docs/METHOD.md gathers them):
     policy       U_robot, U_human, eq (2) on the bounded reference
     allocation   eq (3)-(8)
     arbiters     one tick of any mode, on a batch of any size
+    modes        the modes (plug-ins: one module each) and their registry, `Mode`
     history      the operator's previous attempts (eq 6, last term)
     metrics      the paper's Section IV-D metrics and statistics
 
@@ -20,7 +21,8 @@ Conventions (written down once):
     * Actions U are velocities: m/s, rad/s (base-frame angular velocity), openness/s.
     * Public functions accept a leading batch shape on all of their arrays. The maths itself
       is written once, per state and per dimension, in compiled functions (`jit.kernel`)
-      that the one kernel (`arbiters._tick`) runs over every row of a batch.
+      that the tick's kernels (`arbiters._shared`, the modes' rules, `arbiters._finish`) run
+      over every row of a batch.
 """
 
 from dsteleop.arbitration.arbiters import (
@@ -29,12 +31,12 @@ from dsteleop.arbitration.arbiters import (
     ArbitrationInput,
     ArbitrationStep,
     FilterState,
-    Mode,
     RowModes,
     make_arbiter,
 )
 from dsteleop.arbitration.config import ArbitrationConfig, InvalidConfig
 from dsteleop.arbitration.history import OperatorHistory
+from dsteleop.arbitration.modes import Mode, ModeSpec, Quantities, register, registered, unregister
 from dsteleop.arbitration.se3 import (
     HandState,
     diff,
@@ -56,14 +58,19 @@ __all__ = [
     "HandState",
     "InvalidConfig",
     "Mode",
+    "ModeSpec",
     "OperatorHistory",
+    "Quantities",
     "RowModes",
     "diff",
     "dim_names",
     "integrate",
     "log_relative",
     "make_arbiter",
+    "register",
+    "registered",
     "saturate",
     "so3_exp",
     "so3_log",
+    "unregister",
 ]

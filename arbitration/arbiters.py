@@ -1,19 +1,22 @@
 """The arbiter: one tick of eq (1)-(8) for any mode, on a batch of any size.
 
-One tick, for every dimension i of 6 + F (the maths of each line is stated in `policy.py`
-and `allocation.py`):
+One tick, for every dimension i of 6 + F (the maths of each line is stated in `policy.py`,
+`allocation.py` and the modes' modules):
 
     U_robot = sat(K_r * diff(X_goal, X_current))                  goal-seeking policy
     U_human = sat(diff(X_human, X_human_prev) / dt)                the hand's own motion
     P(H), P(R), psi_human, psi_robot, B                            eq (4)-(7)
-    alpha_i = mode-specific (below)
+    alpha_i = the row's mode's rule (`arbitration/modes/`)
     U_out   = alpha * U_robot + (1 - alpha) * U_human              (1)
     X_next  = advance_reference(X_ref, X_current, U_out, dt)       (2)
 
-Modes: `manual` alpha = 0; `autonomous` alpha = 1; `S` eq (3), one alpha for all dims;
-`DS` eq (8), with a moving-average window over B_i and alpha_i (B's window starts full of
-ones: B starts at 1). Every mode computes P(H), P(R), psi and B, so a viewer or a recorder
-sees the same quantities whatever the mode.
+It runs in three passes: the shared part (`_shared`, one compiled kernel over every row: the
+actions, eq (4)-(7) and eq (3)'s distances, `modes.Quantities`), each mode's alpha rule on
+its own rows, then eq (1)-(2) (`_finish`, one compiled kernel). The kernels take the tick's
+states as one named batch (`TickStates`). Every mode gets P(H), P(R), psi and B, so a viewer
+or a recorder sees the same quantities whatever the mode. The modes are plug-ins
+(`arbitration/modes/`): `manual` alpha = 0; `autonomous` alpha = 1; `S` eq (3); `scalar` eq (3)
+with a cap and a scale; `DS` eq (8) on moving windows of B_i and alpha_i (its own filter state).
 
 All arrays may carry a leading batch shape (the states broadcast against each other; the
 filter state is made for the tick's batch shape); the loop runs a batch of one, the
@@ -22,11 +25,10 @@ simulation study thousands of trajectories.
 
 from __future__ import annotations
 
-import enum
 import functools
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -35,14 +37,13 @@ from dsteleop.arbitration import policy
 from dsteleop.arbitration.allocation import (
     allocation_linear,
     allocation_rotation,
-    ds_alpha_of,
     speed_change_of,
-    standard_alpha_of,
     unit_directions_into,
     willingness_of,
 )
 from dsteleop.arbitration.config import ArbitrationConfig
 from dsteleop.arbitration.jit import as_input, kernel
+from dsteleop.arbitration.modes import Mode, Quantities, registered
 from dsteleop.arbitration.policy import bound_into, human_action_into, robot_action_into
 from dsteleop.arbitration.se3 import (
     HandState,
@@ -57,24 +58,7 @@ from dsteleop.errors import ConfigError
 Array = NDArray[np.float64]
 
 
-class Mode(str, enum.Enum):
-    """Arbitration mode."""
-
-    DS = "DS"
-    S = "S"
-    MANUAL = "manual"
-    AUTONOMOUS = "autonomous"
-
-    @classmethod
-    def parse(cls, text: str) -> Mode:
-        for m in cls:
-            if text.lower() == m.value.lower() or text.upper() == m.name:
-                return m
-        names = ", ".join(m.value for m in cls)
-        raise ConfigError(f"unknown mode {text!r} (choose from {names})")
-
-
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ArbitrationInput:
     """Everything one tick needs; all states in the robot base frame.
 
@@ -136,50 +120,57 @@ STEP_ARRAYS = (
 
 @dataclass(frozen=True)
 class FilterState:
-    """Moving windows of the DS arbiter over the last W ticks, for a batch of M.
-
-    Each window is an array (W, M, 6 + F), oldest tick first, read-only: a tick makes new
-    windows (the last W - 1 rows and its own), so an earlier state stays valid.
+    """The filter state of a batch: each stateful mode's own state for the batch's rows.
 
     Attributes:
-        alpha_window: raw alpha samples (eq 8 on the filtered B, clipped); zeros before the
-            first tick (the mean divides by min(count, W) filled samples).
-        B_window: raw willingness samples (eq 7); the window starts full of ones.
-        count: ticks seen so far.
         batch: the batch shape (...) of the states it filters, M = prod(batch).
+        dims: 6 + F, the dimensions it filters.
+        own: (mode name, its state) for every registered mode with a state of its own (DS's
+            moving windows, `modes.ds.Windows`); a mode registered later starts from its
+            initial state on its first tick.
     """
 
-    alpha_window: Array
-    B_window: Array
-    count: int
     batch: tuple[int, ...]
+    dims: int
+    own: tuple[tuple[str, Any], ...] = ()
 
-    @classmethod
-    def initial(cls, window: int, dims: int, batch: tuple[int, ...] = ()) -> FilterState:
-        M = math.prod(batch)
-        zeros, ones = np.zeros((window, M, dims)), np.ones((window, M, dims))
-        zeros.flags.writeable = ones.flags.writeable = False
-        return cls(zeros, ones, 0, tuple(batch))
+    def of(self, mode: Mode | str) -> Any:
+        """The own state of `mode` (None if it has none yet)."""
+        for name, st in self.own:
+            if name == mode:
+                return st
+        return None
+
+    @property
+    def count(self) -> int:
+        """Ticks DS has stepped its windows (0 before its first)."""
+        ds = self.of(Mode.DS)
+        return 0 if ds is None else int(ds.count)
+
+    @property
+    def alpha_window(self) -> Array:
+        """DS's alpha window (W, M, 6 + F), oldest tick first (`modes.ds.Windows`)."""
+        return self.of(Mode.DS).alpha_window
+
+    @property
+    def B_window(self) -> Array:
+        """DS's B window (W, M, 6 + F), oldest tick first."""
+        return self.of(Mode.DS).B_window
 
     @property
     def alpha_rows(self) -> tuple[Array, ...]:
-        """The alpha window's W rows (M, 6 + F), oldest first."""
+        """DS's alpha window's W rows (M, 6 + F), oldest first."""
         return tuple(self.alpha_window)
 
     @property
     def B_rows(self) -> tuple[Array, ...]:
-        """The B window's W rows (M, 6 + F), oldest first."""
+        """DS's B window's W rows (M, 6 + F), oldest first."""
         return tuple(self.B_window)
 
     def select(self, keep: NDArray[np.bool_]) -> FilterState:
         """The state of the batch rows `keep` (a mask on a one-axis batch)."""
-        a, b = self.alpha_window[:, keep], self.B_window[:, keep]
-        a.flags.writeable = b.flags.writeable = False
-        return FilterState(a, b, self.count, (int(np.count_nonzero(keep)),))
-
-
-#: The modes in the order of `RowModes.codes`.
-MODES: tuple[Mode, ...] = tuple(Mode)
+        own = tuple((name, st.select(keep)) for name, st in self.own)
+        return FilterState((int(np.count_nonzero(keep)),), self.dims, own)
 
 
 @dataclass(frozen=True)
@@ -187,22 +178,58 @@ class RowModes:
     """The mode of every row of a batch that mixes modes (flattened batch order).
 
     Attributes:
-        codes: (M,) index of each row's mode in `MODES`.
+        codes: (M,) index of each row's mode in `modes`.
+        modes: the modes the codes index.
     """
 
     codes: NDArray[np.int8]
+    modes: tuple[Mode, ...] = field(default_factory=registered)
 
     @classmethod
     def of(cls, modes: list[Mode] | tuple[Mode, ...]) -> RowModes:
-        return cls(np.array([MODES.index(m) for m in modes], dtype=np.int8))
+        table = tuple(dict.fromkeys(modes))
+        return cls(np.array([table.index(m) for m in modes], dtype=np.int8), table)
 
     def groups(self) -> list[tuple[Mode, NDArray[np.bool_]]]:
         """(mode, mask of its rows) for each mode present."""
-        return [(m, self.codes == i) for i, m in enumerate(MODES) if (self.codes == i).any()]
+        return [(m, self.codes == i) for i, m in enumerate(self.modes) if (self.codes == i).any()]
+
+    @functools.cached_property
+    def index(self) -> tuple[tuple[Mode, NDArray[np.intp]], ...]:
+        """(mode, indices of its rows) for each mode present (computed once: a study steps
+        the same rows many ticks)."""
+        return tuple((m, np.flatnonzero(mask)) for m, mask in self.groups())
 
     def select(self, keep: NDArray[np.bool_]) -> RowModes:
         """The modes of the rows `keep`."""
-        return RowModes(self.codes[keep])
+        return RowModes(self.codes[keep], self.modes)
+
+
+class StateRows(NamedTuple):
+    """One state's arrays for the kernels: M rows, or one shared by every row."""
+
+    position: Array
+    rotation: Array
+    openness: Array
+
+
+class TickStates(NamedTuple):
+    """The tick's states, as the compiled kernels take them (one named batch)."""
+
+    human: StateRows
+    human_prev: StateRows
+    human_start: StateRows
+    current: StateRows
+    prev: StateRows
+    start: StateRows
+    goal: StateRows
+    ref: StateRows
+
+
+#: The kernels' indices of the states of `TickStates` (a plain tuple reaches them: numba
+#: dispatches a named tuple several times slower than the same tuple).
+_HUMAN, _HUMAN_PREV, _HUMAN_START, _CURRENT, _PREV, _START, _GOAL, _REF = range(8)
+assert TickStates._fields.index("ref") == _REF and TickStates._fields.index("goal") == _GOAL
 
 
 @dataclass(frozen=True)
@@ -214,17 +241,24 @@ class Arbiter:
         config: the hyper-parameters.
     """
 
-    mode: Mode = Mode.DS
+    mode: Mode = field(default_factory=lambda: Mode.DS)
     config: ArbitrationConfig = field(default_factory=ArbitrationConfig)
 
     def initial_state(self, dims: int, batch: tuple[int, ...] = ()) -> FilterState:
-        """A fresh filter state (windows empty, B = 1): at start and at each new segment."""
-        return FilterState.initial(self.config.window, dims, batch)
+        """A fresh filter state (DS: windows empty, B = 1): at start and at each new segment."""
+        M = math.prod(batch)
+        own = tuple(
+            (m.value, m.spec.initial_state(self.config, dims, M))
+            for m in registered()
+            if m.spec.initial_state is not None
+        )
+        return FilterState(tuple(batch), dims, own)
 
     def step(
         self, state: FilterState, inp: ArbitrationInput, rows: RowModes | None = None
     ) -> tuple[FilterState, ArbitrationStep]:
-        """One tick (module docstring); the filter state changes in DS mode only.
+        """One tick (module docstring); a mode's own filter state changes only when it has
+        rows in the tick.
 
         Args:
             state: the filter state (`initial_state`) for the tick's batch.
@@ -243,57 +277,71 @@ class Arbiter:
             raise ConfigError(f"X_ref of batch {inp.X_ref.batch} for a tick of batch {batch}")
         F = inp.X_current.n_fingers
         D = 6 + F
-        if state.batch != batch or state.B_window.shape[2] != D:
+        if state.batch != batch or state.dims != D:
             raise ConfigError(
-                f"filter state for batch {state.batch} and {state.B_window.shape[2]} dims, "
+                f"filter state for batch {state.batch} and {state.dims} dims, "
                 f"tick of batch {batch} and {D} dims"
             )
         M = math.prod(batch)
         if rows is None:
-            codes = _MODE_CODE[self.mode]
-            push = self.mode is Mode.DS
+            groups = [(self.mode, _all_rows(M))]
         else:
             if rows.codes.shape != (M,):
                 raise ConfigError(f"modes for {rows.codes.shape} rows, tick of batch {batch}")
-            codes = rows.codes
-            push = bool((codes == _DS_CODE).any())
+            groups = list(rows.index)
         dt = float(inp.dt)
         X_ref = inp.X_current if inp.X_ref is None else inp.X_ref
+        # The named batch, as the plain tuple the kernels take (fields of `TickStates`).
+        s = tuple(state_input(X, batch) for X in (*states, X_ref))
         history = np.zeros(D) if inp.history_term is None else inp.history_term
-        arrays: tuple[Any, ...] = tuple(a for X in (*states, X_ref) for a in state_input(X, batch))
-        out, p, R, g, alpha_w, B_w = _tick(  # type: ignore[call-arg]
-            *arrays,
-            as_input(history, (), 1)[0],
-            codes,
-            _per_dim_params(cfg, F, dt),
+        out, l1 = _shared(
+            s, as_input(history, (), 1)[0], _per_dim_params(cfg, F, dt),
             dt, float(cfg.kappa), float(cfg.p), float(cfg.q), float(cfg.b),
-            float(cfg.psi_robot_floor), float(cfg.alloc_floor_m), float(cfg.max_lead_m),
-            float(cfg.max_lead_rad), policy.bound_needed(inp.X_ref is not None, dt, cfg),
-            _read_only(state.alpha_window), _read_only(state.B_window), state.count, push, M,
+            float(cfg.psi_robot_floor), float(cfg.alloc_floor_m), M,
         )  # fmt: skip
-        if push:
-            alpha_w.flags.writeable = B_w.flags.writeable = False
-            state = FilterState(alpha_w, B_w, state.count + 1, state.batch)
+        q = Quantities(
+            alpha=out[0], P_human=out[1], P_robot=out[2], B=out[3], psi_human=out[4],
+            psi_robot=out[5], U_human=out[6], U_robot=out[7], l1_goal_current_m=l1[0],
+            l1_goal_start_m=l1[1],
+        )  # fmt: skip
+        own = dict(state.own)
+        for mode, idx in groups:
+            spec = mode.spec
+            st = own.get(mode.value)
+            if st is None and spec.initial_state is not None:
+                st = spec.initial_state(cfg, D, M)
+            new = spec.alpha(cfg.params_of(mode.value), q, idx, st)
+            if spec.initial_state is not None:
+                own[mode.value] = new
+        if len(own) != len(state.own) or any(own[n] is not st for n, st in state.own):
+            state = FilterState(state.batch, D, tuple(own.items()))
+        (Cp, CR, _), (Rp, RR, Rg) = s[_CURRENT], s[_REF]
+        p, R, g = _finish(
+            Cp, CR, Rp, RR, Rg, out, dt,
+            float(cfg.max_lead_m), float(cfg.max_lead_rad),
+            policy.bound_needed(inp.X_ref is not None, dt, cfg), M,
+        )  # fmt: skip
         shape = (*batch, D)
         arrays_out: dict[str, Any] = {n: out[k].reshape(shape) for k, n in enumerate(STEP_ARRAYS)}
         X_next = HandState(p.reshape(*batch, 3), R.reshape(*batch, 3, 3), g.reshape(*batch, F))
         return state, ArbitrationStep(**arrays_out, X_next=X_next)
 
 
-#: Each mode's code in `RowModes.codes` (its index in `MODES`), as the kernel reads it.
-_MODE_CODE = {m: np.array([i], dtype=np.int8) for i, m in enumerate(MODES)}
-_DS_CODE, _S_CODE, _AUTONOMOUS_CODE = (MODES.index(m) for m in (Mode.DS, Mode.S, Mode.AUTONOMOUS))
 #: Rows of the kernel's scratch array of differences.
 _GOAL_H, _GOAL_R, _PREV_H, _PREV_R, _START_H, _START_R = range(6)
+#: The row of `U_out` in the kernels' output (the STEP_ARRAYS before it are the quantities).
+_U_OUT = 8
+assert STEP_ARRAYS.index("U_out") == _U_OUT and STEP_ARRAYS[:_U_OUT] == (
+    "alpha", "P_human", "P_robot", "B", "psi_human", "psi_robot", "U_human", "U_robot",
+)  # fmt: skip
 
 
-def _read_only(window: Array) -> Array:
-    """The window as the kernel always receives it (one compiled version): read-only."""
-    if not window.flags.writeable:
-        return window
-    view = window.view()
-    view.flags.writeable = False
-    return view
+@functools.lru_cache(maxsize=16)
+def _all_rows(M: int) -> NDArray[np.intp]:
+    """Every row of a batch of M, as the alpha rules take rows (read-only, cached)."""
+    rows = np.arange(M, dtype=np.intp)
+    rows.flags.writeable = False
+    return rows
 
 
 @functools.lru_cache(maxsize=64)
@@ -312,28 +360,25 @@ def _per_dim_params(cfg: ArbitrationConfig, n_fingers: int, dt: float) -> Array:
 
 
 @kernel
-def _tick(
-    Hp: Array, HR: Array, Hg: Array,  # X_human
-    Pp: Array, PR: Array, Pg: Array,  # X_human_prev
-    Sp: Array, SR: Array, Sg: Array,  # X_human_start
-    Cp: Array, CR: Array, Cg: Array,  # X_current
-    Qp: Array, QR: Array, Qg: Array,  # X_prev
-    Tp: Array, TR: Array, Tg: Array,  # X_start
-    Gp: Array, GR: Array, Gg: Array,  # X_goal
-    Rp: Array, RR: Array, Rg: Array,  # X_ref
-    history: Array, codes: NDArray[np.int8], params: Array,
-    dt: float, kappa: float, p: float, q: float, b: float, psi_floor: float,
-    floor_m: float, max_lead_m: float, max_lead_rad: float, bounded: bool,
-    alpha_window: Array, B_window: Array, count: int, push: bool, M: int,
-) -> tuple[Array, Array, Array, Array, Array, Array]:  # fmt: skip
-    """One tick of M rows (module docstring). Each input has M rows or one (shared).
+def _shared(
+    s: Any, history: Array, params: Array, dt: float, kappa: float, p: float, q: float,
+    b: float, psi_floor: float, floor_m: float, M: int,
+) -> tuple[Array, Array]:  # fmt: skip
+    """The shared part of one tick of M rows (module docstring); each state of `s` (a
+    `TickStates` as a plain tuple) has M rows or one (shared).
 
-    Returns the STEP_ARRAYS (9, M, 6 + F), X_next (position, rotation, openness) and the
-    new alpha and B windows (W, M, 6 + F; empty when `push` is False).
+    Returns the STEP_ARRAYS (9, M, 6 + F) with alpha and U_out left for the modes and
+    `_finish`, and eq (3)'s L1 distances (2, M): goal-current and the floored goal-start.
     """
+    Hp, HR, Hg = s[_HUMAN][0], s[_HUMAN][1], s[_HUMAN][2]
+    Pp, PR, Pg = s[_HUMAN_PREV][0], s[_HUMAN_PREV][1], s[_HUMAN_PREV][2]
+    Sp, SR, Sg = s[_HUMAN_START][0], s[_HUMAN_START][1], s[_HUMAN_START][2]
+    Cp, CR, Cg = s[_CURRENT][0], s[_CURRENT][1], s[_CURRENT][2]
+    Qp, QR, Qg = s[_PREV][0], s[_PREV][1], s[_PREV][2]
+    Tp, TR, Tg = s[_START][0], s[_START][1], s[_START][2]
+    Gp, GR, Gg = s[_GOAL][0], s[_GOAL][1], s[_GOAL][2]
     F = Cg.shape[1]
     D = 6 + F
-    W = B_window.shape[0]
     gains, v_max, floor, still_step, still_offset = (
         params[0],
         params[1],
@@ -342,8 +387,7 @@ def _tick(
         params[4],
     )
     out = np.empty((9, M, D))
-    alpha, P_h, P_r, B, psi_h, psi_r, U_h, U_r, U_out = (
-        out[0],
+    P_h, P_r, B, psi_h, psi_r, U_h, U_r = (
         out[1],
         out[2],
         out[3],
@@ -351,22 +395,15 @@ def _tick(
         out[5],
         out[6],
         out[7],
-        out[8],
     )
-    next_p, next_R, next_g = np.empty((M, 3)), np.empty((M, 3, 3)), np.empty((M, F))
-    if push:
-        new_alpha, new_B = np.empty((W, M, D)), np.empty((W, M, D))
-        new_alpha[: W - 1] = alpha_window[1:]
-        new_B[: W - 1] = B_window[1:]
-    else:  # unused
-        new_alpha, new_B = np.empty((0, 0, 0)), np.empty((0, 0, 0))
+    l1 = np.empty((2, M))
     # Rows of the scratch arrays: the six differences (to the goal, to the previous state,
     # to the start, per agent) and the two unit directions of eq (6).
     d, u = np.empty((6, D)), np.empty((2, D))
     for m in range(M):
         h, hp, hs = row(Hp.shape[0], m), row(Pp.shape[0], m), row(Sp.shape[0], m)
         c, cp, cs = row(Cp.shape[0], m), row(Qp.shape[0], m), row(Tp.shape[0], m)
-        gl, rf = row(Gp.shape[0], m), row(Rp.shape[0], m)
+        gl = row(Gp.shape[0], m)
         diff_into(Gp, GR, Gg, gl, Hp, HR, Hg, h, d, _GOAL_H)
         diff_into(Gp, GR, Gg, gl, Cp, CR, Cg, c, d, _GOAL_R)
         diff_into(Hp, HR, Hg, h, Pp, PR, Pg, hp, d, _PREV_H)
@@ -396,47 +433,41 @@ def _tick(
             psi_r[m, i] = speed_change_of(U_r[m, i], v_max[i], u[0, i], u[1, i], history[i])
         for i in range(D):
             B[m, i] = willingness_of(psi_h[m, i], psi_r[m, i], p, q, b, psi_floor)
-        # Alpha: eq (8) on the windows (DS), eq (3) (S), or fixed.
-        code = codes[row(codes.shape[0], m)]
-        if push:
-            for i in range(D):
-                B_f = B_window[1, m, i] if W > 1 else 0.0
-                for w in range(2, W):
-                    B_f += B_window[w, m, i]
-                B_f = (B_f + B[m, i]) / W if W > 1 else B[m, i] / W
-                a_raw = ds_alpha_of(P_r[m, i], P_h[m, i], B_f)
-                a_sum = alpha_window[1, m, i] if W > 1 else 0.0
-                for w in range(2, W):
-                    a_sum += alpha_window[w, m, i]
-                a_sum = a_sum + a_raw if W > 1 else a_raw
-                new_B[W - 1, m, i] = B[m, i]
-                new_alpha[W - 1, m, i] = a_raw
-                if code == _DS_CODE:  # the filtered B is the one reported
-                    alpha[m, i] = a_sum / min(count + 1, W)
-                    B[m, i] = B_f
-        if code == _S_CODE:
-            l1_cur = l1_start = 0.0
-            for i in range(3):
-                l1_cur += abs(Gp[gl, i] - Cp[c, i])
-                l1_start += abs(Gp[gl, i] - Tp[cs, i])
-            a_s = standard_alpha_of(l1_cur, l1_start, floor_m)
-            for i in range(D):
-                alpha[m, i] = a_s
-        elif code != _DS_CODE:
-            for i in range(D):
-                alpha[m, i] = 1.0 if code == _AUTONOMOUS_CODE else 0.0
-        # Eq (1), then eq (2) from the reference.
+        # Eq (3)'s distances, the robot's position (S and the scalar baseline read them).
+        l1_cur = l1_start = 0.0
+        for i in range(3):
+            l1_cur += abs(Gp[gl, i] - Cp[c, i])
+            l1_start += abs(Gp[gl, i] - Tp[cs, i])
+        l1[0, m] = l1_cur
+        l1[1, m] = max(l1_start, floor_m)
+    return out, l1
+
+
+@kernel
+def _finish(
+    Cp: Array, CR: Array, Rp: Array, RR: Array, Rg: Array, out: Array, dt: float,
+    max_lead_m: float, max_lead_rad: float, bounded: bool, M: int,
+) -> tuple[Array, Array, Array]:  # fmt: skip
+    """Eq (1), then eq (2) from the reference (Rp, RR, Rg), bounded about the current state
+    (Cp, CR), for M rows: writes U_out into `out` and returns X_next (position, rotation,
+    openness). It reads only these two states (fewer arrays for numba to dispatch on)."""
+    F = Rg.shape[1]
+    D = 6 + F
+    alpha, U_h, U_r, U_out = out[0], out[6], out[7], out[_U_OUT]
+    next_p, next_R, next_g = np.empty((M, 3)), np.empty((M, 3, 3)), np.empty((M, F))
+    for m in range(M):
+        c, rf = row(Cp.shape[0], m), row(Rp.shape[0], m)
         for i in range(D):
             U_out[m, i] = alpha[m, i] * U_r[m, i] + (1.0 - alpha[m, i]) * U_h[m, i]
         integrate_into(Rp, RR, Rg, rf, U_out, m, dt, next_p, next_R, next_g, m)
         if bounded:
             bound_into(Cp, CR, c, max_lead_m, max_lead_rad, next_p, next_R, m)
-    return out, next_p, next_R, next_g, new_alpha, new_B
+    return next_p, next_R, next_g
 
 
 def make_arbiter(mode: Mode | str, config: ArbitrationConfig | None = None) -> Arbiter:
-    """The arbiter of a mode (a Mode or its name: DS, S, manual, autonomous)."""
-    m = mode if isinstance(mode, Mode) else Mode.parse(mode)
+    """The arbiter of a mode (a Mode or its name: DS, S, manual, autonomous, scalar, ...)."""
+    m = Mode.parse(mode)
     return Arbiter(m, config or ArbitrationConfig())
 
 
@@ -459,5 +490,17 @@ def compile_kernels() -> None:
     allocation.willingness(d, d, 2.0, 6.0, 1.0, 0.25)
     allocation.ds_alpha(d, d, d)
     arbiter = make_arbiter(Mode.DS)
-    inp = ArbitrationInput(X, X, X, X, X, X, X, 0.1, X_ref=X)
+    inp = ArbitrationInput(
+        X_human=X, X_human_prev=X, X_human_start=X, X_current=X, X_prev=X, X_start=X,
+        X_goal=X, dt=0.1, X_ref=X,
+    )  # fmt: skip
     arbiter.step(arbiter.initial_state(8), inp)
+    # Every mode's rule, through a mixed batch of two rows.
+    X2 = se3.stack([X, X])
+    inp2 = ArbitrationInput(
+        X_human=X2, X_human_prev=X2, X_human_start=X2, X_current=X2, X_prev=X2, X_start=X2,
+        X_goal=X2, dt=0.1,
+    )  # fmt: skip
+    state = arbiter.initial_state(8, (2,))
+    for mode in registered():
+        state, _ = arbiter.step(state, inp2, RowModes.of([mode, Mode.DS]))

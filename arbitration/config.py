@@ -23,6 +23,8 @@ Defaults (and why):
                       max(|psi_robot|, psi_robot_floor) (0.25: a quarter of a unit direction,
                       the scale of psi), so B stays finite, and an operator who is not changing
                       speed while the robot is not either gets B ~ 0 (control goes to them).
+    mode_params       each mode's own parameters (`arbitration/modes/`), by mode name; written
+                      `<mode>.<field>` in the flat form (`to_dict`, `--param scalar.cap=0.5`).
     max_lead_m/_rad   eq (2) integrates the commanded reference, which may lead the achieved
                       palm by at most 3 cm / 0.25 rad (`policy.advance_reference`): a robot
                       that lags its position controller keeps the hand's full motion, and one
@@ -35,12 +37,13 @@ import dataclasses
 import functools
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from dsteleop.arbitration import modes
 from dsteleop.errors import ConfigError
 
 #: Fields of earlier versions, read from old sessions and dropped: eq (4)'s floor and eq (6)'s
@@ -77,9 +80,13 @@ class ArbitrationConfig:
     psi_robot_floor: float = 0.25
     max_lead_m: float = 0.03
     max_lead_rad: float = 0.25
+    #: (mode name, its parameters) of every mode with parameters of its own.
+    mode_params: tuple[tuple[str, Any], ...] = field(default_factory=modes.default_params)
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
+            if f.name == "mode_params":
+                continue
             value = getattr(self, f.name)
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise InvalidConfig(f"{f.name} must be a number, got {value!r}")
@@ -96,24 +103,58 @@ class ArbitrationConfig:
         """A copy with some fields changed (validated; an unknown name is a ConfigError)."""
         return ArbitrationConfig.from_dict({**self.to_dict(), **changes})
 
+    def params_of(self, mode: str) -> Any:
+        """The own parameters of `mode` (None for a mode without any)."""
+        for name, params in self.mode_params:
+            if name == mode:
+                return params
+        cls = modes.Mode.parse(mode).spec.params
+        return None if cls is None else cls()
+
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        """Every field by name, the modes' own parameters as `<mode>.<field>`."""
+        out = {f: getattr(self, f) for f in self.field_names()}
+        for name, params in self.mode_params:
+            for k, v in dataclasses.asdict(params).items():
+                out[f"{name}.{k}"] = v
+        return out
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> ArbitrationConfig:
-        names = {f.name for f in dataclasses.fields(cls)}
+        """From `to_dict`'s form; a missing mode parameter takes its default."""
+        names = set(cls.field_names())
         data = {k: v for k, v in data.items() if k not in RETIRED}
+        own: dict[str, dict[str, Any]] = {}
+        for k in [k for k in data if "." in k]:
+            mode, _, name = k.partition(".")
+            own.setdefault(mode, {})[name] = data.pop(k)
         unknown = sorted(set(data) - names)
         if unknown:
             known = ", ".join(sorted(names))
             raise InvalidConfig(
                 f"unknown arbitration parameter(s): {', '.join(unknown)} (known: {known})"
             )
-        return cls(**data)
+        params = dict(modes.default_params())
+        for mode, given in own.items():
+            if mode not in params:
+                modes.params_class(mode)  # an unknown mode raises
+                raise InvalidConfig(
+                    f"mode {mode} has no parameters (got {mode}.{next(iter(given))})"
+                )
+            fields = {f.name for f in dataclasses.fields(params[mode])}
+            bad = sorted(set(given) - fields)
+            if bad:
+                raise InvalidConfig(
+                    f"unknown parameter {mode}.{bad[0]} (known: "
+                    f"{', '.join(f'{mode}.{f}' for f in sorted(fields))})"
+                )
+            params[mode] = dataclasses.replace(params[mode], **given)
+        return cls(**data, mode_params=tuple(params.items()))
 
     @classmethod
     def field_names(cls) -> tuple[str, ...]:
-        return tuple(f.name for f in dataclasses.fields(cls))
+        """The shared parameters (the modes' own are in `mode_params`)."""
+        return tuple(f.name for f in dataclasses.fields(cls) if f.name != "mode_params")
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), sort_keys=True)

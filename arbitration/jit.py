@@ -7,10 +7,10 @@ study (thousands of trajectories) makes one pass over its rows.
 
 Compiled code is cached on disk, so only the first run after an install (or after the
 sources change) compiles; `dev.sh` does that at install. The cache folder is named by a hash
-of this package's sources: numba checks only the file of the function it loads, and a kernel
-that inlined a helper from another module would otherwise run the helper's old code after an
-edit. The cache is under ~/.cache/dsteleop/numba (or $XDG_CACHE_HOME), or in $NUMBA_CACHE_DIR
-when that is set.
+of this package's sources (its `modes/` too): numba checks only the file of the function it
+loads, and a kernel that inlined a helper from another module would otherwise run the
+helper's old code after an edit. The cache is under ~/.cache/dsteleop/numba (or
+$XDG_CACHE_HOME), or in $NUMBA_CACHE_DIR when that is set.
 
 Conventions for the compiled functions: arguments are float64 arrays, C-contiguous and
 writable (`as_input`), and Python floats and ints; a function of one dimension takes scalars,
@@ -41,8 +41,9 @@ from numpy.typing import NDArray
 
 def _cache_dir() -> Path:
     digest = hashlib.sha256()
-    for f in sorted(Path(__file__).parent.glob("*.py")):
-        digest.update(f.name.encode())
+    root = Path(__file__).parent
+    for f in sorted(root.rglob("*.py")):  # the modes' plug-ins too
+        digest.update(str(f.relative_to(root)).encode())
         digest.update(f.read_bytes())
     user = os.environ.get("NUMBA_CACHE_DIR")
     if user:

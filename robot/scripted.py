@@ -62,7 +62,17 @@ def goal_seeking_step(
     arbiter = make_arbiter(Mode.AUTONOMOUS, config)
     X = X_current
     _, step = arbiter.step(
-        arbiter.initial_state(6 + X.n_fingers), ArbitrationInput(X, X, X, X, X, X, X_goal, dt_s)
+        arbiter.initial_state(6 + X.n_fingers),
+        ArbitrationInput(
+            X_human=X,
+            X_human_prev=X,
+            X_human_start=X,
+            X_current=X,
+            X_prev=X,
+            X_start=X,
+            X_goal=X_goal,
+            dt=dt_s,
+        ),
     )
     return step.X_next
 

@@ -40,7 +40,18 @@ def input_from_states(
 ) -> ArbitrationInput:
     """ArbitrationInput from its seven states in field order (X_human, ..., X_goal)."""
     H, Hp, Hs, C, Cp, Cs, G = states
-    return ArbitrationInput(H, Hp, Hs, C, Cp, Cs, G, dt=dt, history_term=history_term, X_ref=X_ref)
+    return ArbitrationInput(
+        X_human=H,
+        X_human_prev=Hp,
+        X_human_start=Hs,
+        X_current=C,
+        X_prev=Cp,
+        X_start=Cs,
+        X_goal=G,
+        dt=dt,
+        history_term=history_term,
+        X_ref=X_ref,
+    )
 
 
 def states_of(inp: ArbitrationInput) -> list[HandState]:

@@ -46,6 +46,7 @@ from dsteleop.arbitration.allocation import (
     unit_directions,
     willingness,
 )
+from dsteleop.arbitration.modes.ds import Windows
 from dsteleop.errors import ConfigError
 
 from .strategies import (
@@ -167,8 +168,26 @@ def test_rotation_by_two_pi_changes_nothing(theta: float, k: int) -> None:
     G = state([0.5, 0.0, 0.3], [0, 0, 0.2])
     base = state([0.4, 0.1, 0.3], [0, 0, theta])
     turned = state([0.4, 0.1, 0.3], [0, 0, theta + 2 * np.pi * k])
-    inp_a = ArbitrationInput(base, base, base, base, base, base, G, DT)
-    inp_b = ArbitrationInput(turned, turned, turned, turned, turned, turned, G, DT)
+    inp_a = ArbitrationInput(
+        X_human=base,
+        X_human_prev=base,
+        X_human_start=base,
+        X_current=base,
+        X_prev=base,
+        X_start=base,
+        X_goal=G,
+        dt=DT,
+    )
+    inp_b = ArbitrationInput(
+        X_human=turned,
+        X_human_prev=turned,
+        X_human_start=turned,
+        X_current=turned,
+        X_prev=turned,
+        X_start=turned,
+        X_goal=G,
+        dt=DT,
+    )
     arb = make_arbiter(Mode.DS)
     _, ra = arb.step(arb.initial_state(6 + F), inp_a)
     _, rb = arb.step(arb.initial_state(6 + F), inp_b)
@@ -310,7 +329,18 @@ def run_loop(
     out = []
     for hand in hand_path[1:]:
         fs, r = arb.step(
-            fs, ArbitrationInput(hand, hand_prev, hand_start, X, prev, start, goal, DT, hist)
+            fs,
+            ArbitrationInput(
+                X_human=hand,
+                X_human_prev=hand_prev,
+                X_human_start=hand_start,
+                X_current=X,
+                X_prev=prev,
+                X_start=start,
+                X_goal=goal,
+                dt=DT,
+                history_term=hist,
+            ),
         )
         prev, X, hand_prev = X, r.X_next, hand
         out.append(r)
@@ -352,7 +382,19 @@ def test_ds_b_starts_at_one() -> None:
     assert len(fs.B_rows) == len(fs.alpha_rows) == 5 and fs.count == 0
     for row in fs.B_rows:
         np.testing.assert_array_equal(row, 1.0)
-    _, r = arb.step(fs, ArbitrationInput(s, s, s, s, s, s, goal, DT))
+    _, r = arb.step(
+        fs,
+        ArbitrationInput(
+            X_human=s,
+            X_human_prev=s,
+            X_human_start=s,
+            X_current=s,
+            X_prev=s,
+            X_start=s,
+            X_goal=goal,
+            dt=DT,
+        ),
+    )
     # One raw sample of 5 in the window: B >= 4/5.
     assert np.all(r.B >= 0.8 - 1e-12)
 
@@ -518,11 +560,19 @@ def test_closed_loop_single_and_batched_agree(mode: Mode) -> None:
     for k in range(40):
         inputs = [
             ArbitrationInput(
-                hands[i][k + 1], hands[i][k], hands[i][0], X[i], Xp[i], start[i], goals[i],
-                0.05, h, X_ref=ref[i],
+                X_human=hands[i][k + 1],
+                X_human_prev=hands[i][k],
+                X_human_start=hands[i][0],
+                X_current=X[i],
+                X_prev=Xp[i],
+                X_start=start[i],
+                X_goal=goals[i],
+                dt=0.05,
+                history_term=h,
+                X_ref=ref[i],
             )
             for i in range(3)
-        ]  # fmt: skip
+        ]
         results = []
         for i in range(3):
             fs[i], r = arb.step(fs[i], inputs[i])
@@ -805,7 +855,20 @@ def test_a_blocked_robot_winds_the_reference_up_to_the_bound_only() -> None:
     hand_prev = C
     for k in range(1, 120):
         hand = state([0.4 + 0.1 * DT * k, 0.0, 0.3], [np.pi, 0, 0])
-        fs, r = arb.step(fs, ArbitrationInput(hand, hand_prev, C, C, C, C, goal, DT, X_ref=ref))
+        fs, r = arb.step(
+            fs,
+            ArbitrationInput(
+                X_human=hand,
+                X_human_prev=hand_prev,
+                X_human_start=C,
+                X_current=C,
+                X_prev=C,
+                X_start=C,
+                X_goal=goal,
+                dt=DT,
+                X_ref=ref,
+            ),
+        )
         hand_prev, ref = hand, r.X_next
         assert np.linalg.norm(ref.position - C.position) <= cfg.max_lead_m * (1 + 1e-12)
     np.testing.assert_allclose(ref.position - C.position, [cfg.max_lead_m, 0, 0], atol=1e-12)
@@ -866,7 +929,9 @@ def test_filter_state_rebuilt_from_its_rows_steps_like_the_original(
     assert len(fs.alpha_rows) == len(fs.B_rows) == 5
     assert all(r.shape == (M, 11) for r in (*fs.alpha_rows, *fs.B_rows))
     assert fs.alpha_window.shape == fs.B_window.shape == (5, M, 11)
-    copy = FilterState(fs.alpha_window.copy(), fs.B_window.copy(), fs.count, fs.batch)
+    copy = FilterState(
+        fs.batch, fs.dims, (("DS", Windows(fs.alpha_window.copy(), fs.B_window.copy(), fs.count)),)
+    )
     inp = random_input(rng, batch, 5)
     (a, ra), (b, rb) = arb.step(fs, inp), arb.step(copy, inp)
     assert_step_matches(ra, rb, ())

@@ -46,7 +46,18 @@ def test_1_a_slow_hand_keeps_its_direction_in_eq_6() -> None:
     H, Hp = planar(0.0, v * DT, 0.0), planar(0.0, 0.0, 0.0)
     Hs = planar(0.0, -0.1, 0.0)  # its segment started 10 cm behind: u(cur, start) = +y
     R = planar(0.3, 0.3, 0.0)
-    s = step(ArbitrationInput(H, Hp, Hs, R, R, R, planar(0.3, 0.4, 0.0), DT))
+    s = step(
+        ArbitrationInput(
+            X_human=H,
+            X_human_prev=Hp,
+            X_human_start=Hs,
+            X_current=R,
+            X_prev=R,
+            X_start=R,
+            X_goal=planar(0.3, 0.4, 0.0),
+            dt=DT,
+        )
+    )
     U_y = v / ArbitrationConfig().v_max_mps
     np.testing.assert_allclose(s.psi_human[1], U_y - 1.0 - 1.0, atol=1e-9)
 
@@ -56,7 +67,18 @@ def test_1_a_hand_still_within_the_noise_floor_has_no_direction() -> None:
     drift = 0.5 * cfg.still_speed_mps * DT  # half the still speed
     H, Hp = planar(drift, 0.0, 0.0), planar(0.0, 0.0, 0.0)
     R = planar(0.3, 0.3, 0.0)
-    s = step(ArbitrationInput(H, Hp, H, R, R, R, planar(0.3, 0.4, 0.0), DT))
+    s = step(
+        ArbitrationInput(
+            X_human=H,
+            X_human_prev=Hp,
+            X_human_start=H,
+            X_current=R,
+            X_prev=R,
+            X_start=R,
+            X_goal=planar(0.3, 0.4, 0.0),
+            dt=DT,
+        )
+    )
     # u(cur, prev) = 0 and u(cur, start) = 0: psi is the action's own term.
     np.testing.assert_allclose(s.psi_human, s.U_human / cfg.v_max(0), atol=1e-12)
 
@@ -65,12 +87,34 @@ def test_2_a_slow_heading_wander_is_not_a_unit_direction() -> None:
     """The planar heading turns by 0.0015 rad a tick (0.045 rad/s, a wander): no +-1."""
     H, Hp = planar(0.0, 0.0, 0.0015), planar(0.0, 0.0, 0.0)
     R = planar(0.3, 0.3, 0.0)
-    s = step(ArbitrationInput(H, Hp, H, R, R, R, planar(0.3, 0.4, 0.5), DT))
+    s = step(
+        ArbitrationInput(
+            X_human=H,
+            X_human_prev=Hp,
+            X_human_start=H,
+            X_current=R,
+            X_prev=R,
+            X_start=R,
+            X_goal=planar(0.3, 0.4, 0.5),
+            dt=DT,
+        )
+    )
     cfg = ArbitrationConfig()
     assert abs(s.psi_human[5] - s.U_human[5] / cfg.w_max_radps) < 1e-12
     # A real turn (0.3 rad/s), 0.2 rad into its segment, keeps its direction.
     H2, Hs = planar(0.0, 0.0, 0.3 * DT), planar(0.0, 0.0, -0.2)
-    s2 = step(ArbitrationInput(H2, Hp, Hs, R, R, R, planar(0.3, 0.4, 0.5), DT))
+    s2 = step(
+        ArbitrationInput(
+            X_human=H2,
+            X_human_prev=Hp,
+            X_human_start=Hs,
+            X_current=R,
+            X_prev=R,
+            X_start=R,
+            X_goal=planar(0.3, 0.4, 0.5),
+            dt=DT,
+        )
+    )
     np.testing.assert_allclose(s2.psi_human[5], s2.U_human[5] / cfg.w_max_radps - 2.0, atol=1e-9)
 
 
@@ -99,7 +143,19 @@ def test_4_p_is_smooth_where_the_goal_equals_the_start() -> None:
     P = []
     for dz in (0.0005, 0.002, 0.005, 0.01):
         cur = state((0.5, 0.2, 0.4 + dz))
-        s = step(ArbitrationInput(cur, cur, cur, cur, cur, start, goal, DT), Mode.S)
+        s = step(
+            ArbitrationInput(
+                X_human=cur,
+                X_human_prev=cur,
+                X_human_start=cur,
+                X_current=cur,
+                X_prev=cur,
+                X_start=start,
+                X_goal=goal,
+                dt=DT,
+            ),
+            Mode.S,
+        )
         P.append(float(s.P_robot[2]))
     assert all(a > b for a, b in itertools.pairwise(P))  # falls with the distance
     assert P[0] > 0.95 and P[-1] > 0.4  # at 1 cm it still counts as near (task scale)

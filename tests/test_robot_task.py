@@ -125,7 +125,19 @@ def test_scripted_policy_is_the_autonomous_arbiter() -> None:
     X = HandState(np.array([0.5, 0.1, 0.4]), so3_exp(np.array([3.0, 0.1, 0.0])), np.ones(4))
     G = HandState(np.array([0.6, 0.3, 0.3]), so3_exp(np.array([2.9, 0.0, 0.3])), np.zeros(4))
     arbiter = make_arbiter("autonomous")
-    _, out = arbiter.step(arbiter.initial_state(10), ArbitrationInput(X, X, X, X, X, X, G, 1 / 30))
+    _, out = arbiter.step(
+        arbiter.initial_state(10),
+        ArbitrationInput(
+            X_human=X,
+            X_human_prev=X,
+            X_human_start=X,
+            X_current=X,
+            X_prev=X,
+            X_start=X,
+            X_goal=G,
+            dt=1 / 30,
+        ),
+    )
     Y = goal_seeking_step(X, G, 1 / 30)
     assert np.allclose(out.X_next.position, Y.position)
     assert np.allclose(out.X_next.rotation, Y.rotation)

@@ -35,7 +35,16 @@ def _states(rng: np.random.Generator, batch: tuple[int, ...], n_fingers: int) ->
 
 def _inputs(rng: np.random.Generator, batch: tuple[int, ...], n_fingers: int) -> ArbitrationInput:
     H, Hp, Hs, C, Cp, Cs, G = (_states(rng, batch, n_fingers) for _ in range(7))
-    return ArbitrationInput(H, Hp, Hs, C, Cp, Cs, G, dt=1.0 / 30.0)
+    return ArbitrationInput(
+        X_human=H,
+        X_human_prev=Hp,
+        X_human_start=Hs,
+        X_current=C,
+        X_prev=Cp,
+        X_start=Cs,
+        X_goal=G,
+        dt=1.0 / 30.0,
+    )
 
 
 def run(quick: bool = False) -> dict[str, Any]:
@@ -124,4 +133,13 @@ def _tick_like(
     hum = near(cur, 0.02, 0.1, 0.05)
     hum_prev = near(hum, 0.005, 0.01, 0.01)
     hum_start = near(start, 0.02, 0.05, 0.02)
-    return ArbitrationInput(hum, hum_prev, hum_start, cur, prev, start, goal, dt=1.0 / 30.0)
+    return ArbitrationInput(
+        X_human=hum,
+        X_human_prev=hum_prev,
+        X_human_start=hum_start,
+        X_current=cur,
+        X_prev=prev,
+        X_start=start,
+        X_goal=goal,
+        dt=1.0 / 30.0,
+    )

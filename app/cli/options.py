@@ -24,7 +24,7 @@ from typing import Any
 
 from dsteleop.app.loop import LoopConfig, LostPolicy
 from dsteleop.app.rrd.target import DEFAULT_ADDR, RerunTarget
-from dsteleop.arbitration import ArbitrationConfig, Mode
+from dsteleop.arbitration import ArbitrationConfig, Mode, registered
 from dsteleop.errors import ConfigError, InputError
 from dsteleop.tracking.sources import (
     ROTATIONS_DEG,
@@ -151,7 +151,11 @@ def add_loop_options(
 ) -> None:
     """Options shared by `run` and `serve` (`record_help`: what `--record DIR` means there)."""
     parser.add_argument("--source", default=default_source, help=f"{SOURCE_GRAMMAR}")
-    parser.add_argument("--mode", default=None, help="DS, S, manual or autonomous (default DS)")
+    parser.add_argument(
+        "--mode",
+        default=None,
+        help=f"the arbitration mode: {', '.join(m.value for m in registered())} (default DS)",
+    )
     parser.add_argument(
         "--utensil", default="spoon", help="utensil to pick (spoon, spatula, ladle)"
     )

@@ -33,7 +33,7 @@ from typing import Any, Literal
 
 from dsteleop.app.cli.options import add_config_options, add_video_options, arbitration_config
 from dsteleop.app.cli.progress import Progress, prepare_out_dir
-from dsteleop.arbitration import ArbitrationConfig, Mode
+from dsteleop.arbitration import ArbitrationConfig, Mode, registered
 from dsteleop.errors import ConfigError, InputError
 from dsteleop.tracking.sources import check_rotation
 
@@ -83,7 +83,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="session folders, folders of sessions, or video files",
     )
     parser.add_argument(
-        "--modes", default="S,DS", help="comma-separated modes to replay in (default S,DS)"
+        "--modes",
+        default="S,DS",
+        help="comma-separated modes to replay in (default S,DS; any of "
+        f"{','.join(m.value for m in registered())})",
     )
     parser.add_argument(
         "--out", required=True, type=Path, help="output folder for metrics.json and plots"

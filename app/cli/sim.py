@@ -23,7 +23,7 @@ from typing import Any
 
 from dsteleop.app.cli.options import add_config_options, arbitration_config
 from dsteleop.app.cli.progress import Progress, prepare_out_dir
-from dsteleop.arbitration import Mode
+from dsteleop.arbitration import Mode, registered
 from dsteleop.errors import ConfigError
 
 log = logging.getLogger("dsteleop.sim")
@@ -81,8 +81,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--modes",
-        default="S,DS,manual,autonomous",
-        help="comma-separated arbitration modes (default all four)",
+        default=None,
+        help="comma-separated arbitration modes (default: every registered one, "
+        f"{','.join(m.value for m in registered())})",
     )
     parser.add_argument(
         "--example",
@@ -129,10 +130,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def command(args: argparse.Namespace) -> SimCommand:
     """The command's settings; bad values raise ConfigError with one line."""
-    from dsteleop.app.study.core import SimConfig
+    from dsteleop.app.study.core import SimConfig, all_modes
     from dsteleop.app.study.run import workers_for
 
-    modes = tuple(Mode.parse(s.strip()) for s in str(args.modes).split(","))
+    modes = (
+        all_modes()
+        if args.modes is None
+        else tuple(Mode.parse(s.strip()) for s in str(args.modes).split(","))
+    )
     arb, _ = arbitration_config(args)
     if args.operator not in OPERATORS:
         raise ConfigError(

@@ -1,12 +1,16 @@
 """`dsteleop tune`: hyper-parameter studies of the arbitration, trials as Ray tasks.
 
-    dsteleop tune --objective study|sessions|both --trials N --out DIR
+    dsteleop tune --objective study|sessions|both --trials N --out DIR [--mode M]
                   [--space NAME=SPEC ...] [--metric agreement|cosine_distance|time_s|success]
                   [--no-constraint] [--sampler tpe|grid|random] [--seed K] [--grid-points K]
                   [--trajectories N] [--study-seed S] [--sessions PATH ...]
                   [--sessions-via path|store] [--holdout-trajectories M] [--holdout-seed S]
                   [--holdout-sessions PATH ...] [--address ray://HOST:PORT|auto|HOST:PORT]
                   [--workers N] [--config FILE.json] [--param NAME=VALUE ...] [--resume]
+
+`--mode M` tunes mode M (default DS; any registered mode but S, the reference every trial is
+paired with) over its own default space (stated next to the mode, `arbitration/modes/`)
+unless `--space` gives one, with the same trial budget whatever the mode.
 
 Optuna asks for configurations, Ray runs their trials (a local cluster on this machine unless
 `--address` names one), results are told back as they arrive; DIR gets trials.csv, best.json,
@@ -46,6 +50,7 @@ DEFAULTS: dict[str, Any] = {
     "objective": "study",
     "metric": "agreement",
     "constrained": True,
+    "mode": "DS",
     "sampler": "tpe",
     "seed": 0,
     "grid_points": 5,
@@ -91,10 +96,17 @@ class TuneCommand:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from dsteleop.app.tune.space import DEFAULT_SPACE, SPACE_GRAMMAR
+    from dsteleop.app.tune.space import SPACE_GRAMMAR
+    from dsteleop.arbitration import registered
 
     a = parser.add_argument
     a("--objective", default=None, help="study (default), sessions or both")
+    a(
+        "--mode",
+        default=None,
+        help="the mode tuned, paired with S in every trial: "
+        f"{', '.join(m.value for m in registered() if m.value != 'S')} (default DS)",
+    )
     a("--trials", type=int, default=40, metavar="N", help="trials in all (default 40)")
     a("--out", required=True, type=Path, metavar="DIR", help="output folder (holds the study)")
     a(
@@ -103,12 +115,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="NAME=SPEC",
         help=f"a searched parameter, repeatable: {SPACE_GRAMMAR} "
-        f"(default: {' '.join(DEFAULT_SPACE)})",
+        "(default: the mode's own, e.g. DS: "
+        f"{' '.join(registered()[0].spec.space)})",
     )
     a(
         "--metric",
         default=None,
-        help="DS's metric to optimise: agreement (default), cosine_distance, time_s, success",
+        help="the mode's metric to optimise: agreement (default), cosine_distance, time_s, success",
     )
     a(
         "--no-constraint",
@@ -116,7 +129,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_const",
         const=False,
         default=None,
-        help="do not require DS to succeed at least as often as S",
+        help="do not require the mode to succeed at least as often as S",
     )
     a("--sampler", default=None, help="tpe (default), grid or random")
     a("--seed", type=int, default=None, help="the sampler's seed (default 0)")
@@ -200,6 +213,10 @@ def command(args: argparse.Namespace) -> TuneCommand:
     from dsteleop.app.tune.space import parse_space
 
     given: dict[str, Any] = {}
+    if args.mode is not None:
+        from dsteleop.arbitration import Mode
+
+        given["mode"] = Mode.parse(args.mode).value
     for name in ("objective", "metric", "constrained", "sampler", "seed", "grid_points"):
         if getattr(args, name) is not None:
             given[name] = getattr(args, name)
@@ -208,7 +225,7 @@ def command(args: argparse.Namespace) -> TuneCommand:
     if args.study_seed is not None:
         given["study_seed"] = args.study_seed
     if args.space is not None:
-        given["space"] = [d.spec for d in parse_space(args.space)]
+        given["space"] = [d.spec for d in parse_space(args.space, given.get("mode", "DS"))]
     if args.sessions is not None:
         given["sessions"] = _sessions(args.sessions, "--sessions")
     if args.config is not None or args.param:
@@ -248,17 +265,18 @@ def command(args: argparse.Namespace) -> TuneCommand:
 def new_settings(given: dict[str, Any]) -> TuneSettings:
     """The settings of a new study: the given options over the defaults."""
     from dsteleop.app.tune.driver import SETTINGS_SCHEMA, TuneSettings
-    from dsteleop.app.tune.space import DEFAULT_SPACE
+    from dsteleop.app.tune.space import default_space
     from dsteleop.arbitration import ArbitrationConfig
 
     d: dict[str, Any] = {
         "schema": SETTINGS_SCHEMA,
         **DEFAULTS,
-        "space": list(DEFAULT_SPACE),
         "sessions": [],
         "base": ArbitrationConfig().to_dict(),
         **given,
     }
+    if "space" not in given:
+        d["space"] = list(default_space(d["mode"]))
     if d["objective"] == "sessions":
         for k in ("trajectories", "study_seed"):
             if k in given:
@@ -439,13 +457,13 @@ def _holdout(
     n_tasks = 0
     batch = None
     if cmd.holdout_trajectories > 0:
-        batch = StudyBatch(cmd.holdout_trajectories, seed)
+        batch = StudyBatch(cmd.holdout_trajectories, seed, settings.mode)
         n_tasks += holdout.tasks(batch, len(configs), executor.capacity)
     n_tasks += 4 * len(cmd.holdout_sessions)
     with Progress(n_tasks, sys.stderr, show, "held-out", "tasks") as bar:
         if batch is not None:
             res = holdout.study_holdout(executor, batch, configs, on_task=bar.advance)
-            study = holdout.compare(res)
+            study = holdout.compare(res, mode=settings.mode)
             study["seed"] = seed
             study["tuning_seed"] = None if settings.batch is None else settings.batch.seed
             out["study"] = study
@@ -454,7 +472,9 @@ def _holdout(
                 p if via == "path" else executor.share(pack_session(Path(p)))
                 for p in cmd.holdout_sessions
             ]
-            by_config = holdout.sessions_holdout(executor, refs, configs, on_task=bar.advance)
+            by_config = holdout.sessions_holdout(
+                executor, refs, configs, on_task=bar.advance, mode=settings.mode
+            )
             out["sessions"] = {"count": len(cmd.holdout_sessions), **by_config}
     if "sessions" in settings.objective.sources and not cmd.holdout_sessions:
         out["sessions_note"] = (
@@ -549,7 +569,7 @@ def _brief(summary: dict[str, Any]) -> dict[str, Any]:
     h = (summary.get("holdout") or {}).get("study")
     gain = None
     if h:
-        g = h["gain_DS"]
+        g = h[f"gain_{summary['settings'].get('mode', 'DS')}"]
         gain = {
             "trajectories": h["trajectories"],
             "seed": h["seed"],
@@ -562,7 +582,7 @@ def _brief(summary: dict[str, Any]) -> dict[str, Any]:
         "best": None
         if best is None
         else {"number": best["number"], "value": best["value"], "params": best["params"]},
-        "holdout_gain_DS_over_base": gain,
+        f"holdout_gain_{summary['settings'].get('mode', 'DS')}_over_base": gain,
         "cluster": summary["cluster"],
         "timing": summary["timing"],
         "files": summary["files"],

@@ -167,10 +167,18 @@ def decide(
         filt, step = arbiter.step(
             state.filter,
             ArbitrationInput(
-                X_h, X_h_prev, X_h_start, state.X_current, state.X_prev, state.X_start,
-                goal, dt, history_term, X_ref=state.X_ref,
+                X_human=X_h,
+                X_human_prev=X_h_prev,
+                X_human_start=X_h_start,
+                X_current=state.X_current,
+                X_prev=state.X_prev,
+                X_start=state.X_start,
+                X_goal=goal,
+                dt=dt,
+                history_term=history_term,
+                X_ref=state.X_ref,
             ),
-        )  # fmt: skip
+        )
         new = replace(
             state,
             X_human_prev=X_h,
@@ -229,10 +237,16 @@ def _assist(
     _, step = auto.step(
         auto.initial_state(D),
         ArbitrationInput(
-            X_h, X_h, state.X_human_start or X_h, state.X_current, state.X_prev,
-            state.X_start, goal, cfg.dt_s,
+            X_human=X_h,
+            X_human_prev=X_h,
+            X_human_start=state.X_human_start or X_h,
+            X_current=state.X_current,
+            X_prev=state.X_prev,
+            X_start=state.X_start,
+            X_goal=goal,
+            dt=cfg.dt_s,
         ),
-    )  # fmt: skip
+    )
     return step.U_robot * cfg.assist_speed, step
 
 

@@ -67,6 +67,7 @@ from dsteleop.arbitration import (
     dim_names,
     make_arbiter,
     metrics,
+    registered,
     so3_exp,
 )
 from dsteleop.arbitration.se3 import stack as stack_states
@@ -77,7 +78,20 @@ Array = NDArray[np.float64]
 OperatorKind = Literal["closed-loop", "side", "aligned", "deviate"]
 OPERATORS: tuple[str, ...] = ("closed-loop", "side", "aligned", "deviate")
 OPEN_LOOP: tuple[str, ...] = ("side", "aligned", "deviate")
-ALL_MODES: tuple[Mode, ...] = (Mode.S, Mode.DS, Mode.MANUAL, Mode.AUTONOMOUS)
+
+
+def all_modes() -> tuple[Mode, ...]:
+    """Every registered mode (`arbitration.modes`), S and DS first: the study's default."""
+    return (Mode.S, Mode.DS, *(m for m in registered() if m not in (Mode.S, Mode.DS)))
+
+
+def __getattr__(name: str) -> Any:
+    """`ALL_MODES`: the registered modes now (`all_modes`), read when asked for."""
+    if name == "ALL_MODES":
+        return all_modes()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 SCHEMA = "dsteleop.sim_summary/2"
 DEAD_BAND_MPS = 0.001  # the dead-band variant skips output actions slower than this [m/s]
 HIST_BINS = 16
@@ -140,7 +154,7 @@ class SimConfig:
     trajectories: int = 1000
     seed: int = 0
     operator: OperatorKind = "closed-loop"
-    modes: tuple[Mode, ...] = ALL_MODES
+    modes: tuple[Mode, ...] = field(default_factory=all_modes)
     dt_s: float = 1.0 / 30.0
     start_xy_m: tuple[float, float] = (0.0, 0.0)
     start_heading_rad: float = 0.0
@@ -714,7 +728,16 @@ def _simulate(
         t_next = (k + 1) * cfg.dt_s
         H, Hp = hands.next(k, t_next)
         hands.ended(rows, k)
-        inp = ArbitrationInput(H, Hp, H0, X, Xp, X0r, G, cfg.dt_s)
+        inp = ArbitrationInput(
+            X_human=H,
+            X_human_prev=Hp,
+            X_human_start=H0,
+            X_current=X,
+            X_prev=Xp,
+            X_start=X0r,
+            X_goal=G,
+            dt=cfg.dt_s,
+        )
         state, step = arb.step(state, inp, mixed)
         Xp, X = X, step.X_next
         hands.observe(t_next, X)

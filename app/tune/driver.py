@@ -41,6 +41,7 @@ from dsteleop.app.tune.trial import (
     SessionRef,
     StudyBatch,
     pack_session,
+    paired,
     session_task,
     sessions_metrics,
     study_task,
@@ -158,6 +159,13 @@ class TuneSettings:
             raise ConfigError(
                 f"--sessions given but --objective {self.objective.kind} does not replay them"
             )
+        if self.batch is not None and self.batch.mode != self.objective.mode:
+            raise ConfigError("the study's tuning batch is of another mode than the objective's")
+
+    @property
+    def mode(self) -> str:
+        """The tuned mode (paired with S in every trial)."""
+        return self.objective.mode
 
     @property
     def grid_size(self) -> int:
@@ -174,6 +182,7 @@ class TuneSettings:
             "objective": self.objective.kind,
             "metric": self.objective.metric,
             "constrained": self.objective.constrained,
+            "mode": self.objective.mode,
             "space": [d.spec for d in self.space],
             "sampler": self.sampler,
             "seed": self.seed,
@@ -189,11 +198,12 @@ class TuneSettings:
         if d.get("schema") != SETTINGS_SCHEMA:
             raise InputError(f"a tuning study of schema {d.get('schema')!r}, not {SETTINGS_SCHEMA}")
         batch = None
+        mode = str(d.get("mode", "DS"))  # studies made before modes were plug-ins tuned DS
         if d.get("trajectories") is not None:
-            batch = StudyBatch(int(d["trajectories"]), int(d["study_seed"]))
+            batch = StudyBatch(int(d["trajectories"]), int(d["study_seed"]), mode)
         return cls(
-            objective=Objective(d["objective"], d["metric"], bool(d["constrained"])),
-            space=parse_space(d["space"]),
+            objective=Objective(d["objective"], d["metric"], bool(d["constrained"]), mode),
+            space=parse_space(d["space"], mode),
             sampler=d["sampler"],
             seed=int(d["seed"]),
             grid_points=int(d["grid_points"]),
@@ -484,8 +494,8 @@ def run_trials(
         if settings.batch is not None:
             handles.append(("study", executor.submit(study_task, settings.batch, arb)))
         for ref in refs:
-            for mode in ("S", "DS"):
-                handles.append(("session", executor.submit(session_task, ref, mode, arb)))
+            for mode in paired(settings.mode):
+                handles.append(("session", executor.submit(session_task, ref, mode.value, arb)))
         running[trial.number] = _Running(trial, params, handles, t0)
         for kind, h in handles:
             by_handle[h] = (trial.number, kind)
@@ -503,7 +513,7 @@ def run_trials(
                 if kind == "study":
                     metrics.update(r)
             if sessions:
-                metrics.update(sessions_metrics(sessions))
+                metrics.update(sessions_metrics(sessions, settings.mode))
             seconds = sum(v for k, v in metrics.items() if k.endswith(".seconds"))
         value: float | None = None
         cons: list[float] = []

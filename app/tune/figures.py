@@ -1,12 +1,12 @@
 """The tuning study's figures.
 
-sensitivity.png  one panel per (metric, parameter): DS's value of every complete trial
-                 against the parameter (filled: the constraint held; hollow: it did not;
-                 a star: the best trial), S's value as a line (a horizontal line when the
-                 searched parameters do not change S, else S's values joined in
-                 parameter order), one row per source and metric
-heatmap.png      for a grid over two parameters: DS minus S per grid cell, one panel per
-                 metric (the mean when a cell ran more than once)
+sensitivity.png  one panel per (metric, parameter): the tuned mode's value of every
+                 complete trial against the parameter (filled: the constraint held;
+                 hollow: it did not; a star: the best trial), S's value as a line (a
+                 horizontal line when the searched parameters do not change S, else S's
+                 values joined in parameter order), one row per source and metric
+heatmap.png      for a grid over two parameters: the tuned mode minus S per grid cell, one
+                 panel per metric (the mean when a cell ran more than once)
 """
 
 from __future__ import annotations
@@ -43,12 +43,13 @@ def write_sensitivity(
     done = [r for r in recs if r.state == "COMPLETE"]
     rows = [(s, m) for s in settings.objective.sources for m in MODE_METRICS]
     dims = settings.space
+    tuned = settings.mode
     fig, axes = plt.subplots(
         len(rows), len(dims), figsize=(3.0 * len(dims) + 0.6, 2.3 * len(rows) + 0.8),
         squeeze=False,
     )  # fmt: skip
     for i, (source, metric) in enumerate(rows):
-        ds = np.array([r.metrics.get(key(source, "DS", metric), math.nan) for r in done])
+        ds = np.array([r.metrics.get(key(source, tuned, metric), math.nan) for r in done])
         s = np.array([r.metrics.get(key(source, "S", metric), math.nan) for r in done])
         feasible = np.array([r.feasible for r in done], dtype=bool)
         for j, d in enumerate(dims):
@@ -62,15 +63,15 @@ def write_sensitivity(
                 else:
                     ax.plot(x[order], s[order], color="tab:red", lw=1.0, marker=".", ms=3,
                             label="S")  # fmt: skip
-                ax.scatter(x[feasible], ds[feasible], s=16, color="tab:purple", label="DS")
+                ax.scatter(x[feasible], ds[feasible], s=16, color="tab:purple", label=tuned)
                 ax.scatter(
                     x[~feasible], ds[~feasible], s=16, facecolors="none",
-                    edgecolors="tab:purple", label="DS (constraint not met)",
+                    edgecolors="tab:purple", label=f"{tuned} (constraint not met)",
                 )  # fmt: skip
                 if best is not None:
                     ax.scatter(
                         [float(best.params[d.name])],
-                        [best.metrics.get(key(source, "DS", metric), math.nan)],
+                        [best.metrics.get(key(source, tuned, metric), math.nan)],
                         marker="*", s=120, color="gold", edgecolors="black", zorder=5,
                         label="best",
                     )  # fmt: skip
@@ -111,6 +112,7 @@ def write_heatmap(settings: TuneSettings, recs: Sequence[TrialRecord], out: Path
         return None
     plt = _pyplot()
     dx, dy = settings.space
+    tuned = settings.mode
     xs, ys = dx.grid(settings.grid_points), dy.grid(settings.grid_points)
     rows = [(s, m) for s in settings.objective.sources for m in MODE_METRICS]
     fig, axes = plt.subplots(
@@ -127,7 +129,7 @@ def write_heatmap(settings: TuneSettings, recs: Sequence[TrialRecord], out: Path
                 i, j = ys.index(r.params[dy.name]), xs.index(r.params[dx.name])
             except ValueError:
                 continue
-            v = r.metrics.get(key(source, "DS", metric), math.nan) - r.metrics.get(
+            v = r.metrics.get(key(source, tuned, metric), math.nan) - r.metrics.get(
                 key(source, "S", metric), math.nan
             )
             if math.isfinite(v):
@@ -145,7 +147,7 @@ def write_heatmap(settings: TuneSettings, recs: Sequence[TrialRecord], out: Path
         ax.set_yticks(range(len(ys)), [f"{v:.3g}" for v in ys], fontsize=7)
         ax.set_xlabel(dx.name)
         ax.set_ylabel(dy.name)
-        ax.set_title(f"{source}: {LABELS[metric]}, DS - S", fontsize=9)
+        ax.set_title(f"{source}: {LABELS[metric]}, {tuned} - S", fontsize=9)
         fig.colorbar(im, ax=ax, shrink=0.8)
     fig.tight_layout()
     fig.savefig(out / HEATMAP, dpi=DPI)

@@ -3,13 +3,13 @@ closed-loop study drawn with another seed than the tuning batch's (and, when giv
 sessions), so the tuned configuration is never scored on what it was tuned on. The best of
 many trials on one batch is optimistic by selection; this fresh evaluation is not.
 
-Both configurations run S and DS on the same held-out trajectories (paired). Reported per
-configuration and mode: the headline numbers with their 95 % intervals
-(`app.study.core.headline`); the gain of the tuned configuration's DS over the base's DS per
-metric as the mean paired difference over trajectories with its 95 % t interval
-(`metrics.paired_difference`; time as the ratio of geometric means, from log times); and, on
-the tuned configuration, DS against S (the constraint, held out) with the N-1 chi-squared
-test.
+Both configurations run S and the tuned mode M (DS unless `--mode` says otherwise) on the
+same held-out trajectories (paired). Reported per configuration and mode: the headline
+numbers with their 95 % intervals (`app.study.core.headline`); the gain of the tuned
+configuration's M over the base's M per metric as the mean paired difference over
+trajectories with its 95 % t interval (`metrics.paired_difference`; time as the ratio of
+geometric means, from log times), as `gain_<M>`; and, on the tuned configuration, M against
+S (the constraint, held out) with the N-1 chi-squared test, as `tuned_<M>_vs_S`.
 """
 
 from __future__ import annotations
@@ -24,7 +24,13 @@ from numpy.typing import NDArray
 
 from dsteleop.app.study.core import ModeResult, StudyResult, headline, merge
 from dsteleop.app.tune.driver import Executor, TaskError, TuneSettings
-from dsteleop.app.tune.trial import StudyBatch, session_task, sessions_metrics, study_chunk
+from dsteleop.app.tune.trial import (
+    StudyBatch,
+    paired,
+    session_task,
+    sessions_metrics,
+    study_chunk,
+)
 from dsteleop.arbitration import ArbitrationConfig, metrics
 from dsteleop.errors import DsteleopError
 
@@ -43,7 +49,8 @@ def study_holdout(
     on_task: Callable[[], None] | None = None,
 ) -> dict[str, StudyResult]:
     """Every configuration of `configs` (name -> ArbitrationConfig fields) on every
-    trajectory of `batch`, S and DS, in chunks of at most CHUNK trajectories as tasks."""
+    trajectory of `batch`, S and the batch's mode, in chunks of at most CHUNK trajectories
+    as tasks."""
     chunks = _chunks(batch.trajectories, executor.capacity)
     handles = {
         executor.submit(study_chunk, batch, dict(cfg), idx): name
@@ -94,21 +101,25 @@ def tasks(batch: StudyBatch, configs: int, capacity: int) -> int:
 
 
 def compare(
-    results: Mapping[str, StudyResult], base: str = "base", tuned: str = "best"
+    results: Mapping[str, StudyResult],
+    base: str = "base",
+    tuned: str = "best",
+    mode: str = "DS",
 ) -> dict[str, Any]:
-    """The report of the module docstring from `study_holdout`'s results."""
+    """The report of the module docstring from `study_holdout`'s results (`mode`: the tuned
+    mode)."""
     out: dict[str, Any] = {"trajectories": int(results[base].lengths.size)}
     for name, res in results.items():
-        out[name] = {mode: headline(r) for mode, r in res.modes.items()}
-    a, b = results[tuned].modes["DS"], results[base].modes["DS"]
-    out["gain_DS"] = gains(a, b)
+        out[name] = {m: headline(r) for m, r in res.modes.items()}
+    a, b = results[tuned].modes[mode], results[base].modes[mode]
+    out[f"gain_{mode}"] = gains(a, b)
     out["gain_S"] = gains(results[tuned].modes["S"], results[base].modes["S"])
-    s, ds = results[tuned].modes["S"], results[tuned].modes["DS"]
+    s, ds = results[tuned].modes["S"], results[tuned].modes[mode]
     chi = metrics.n1_chi_squared(
         int(ds.success.sum()), ds.success.size, int(s.success.sum()), s.success.size
     )
-    out["tuned_DS_vs_S"] = {
-        "successes_DS": int(ds.success.sum()),
+    out[f"tuned_{mode}_vs_S"] = {
+        f"successes_{mode}": int(ds.success.sum()),
         "successes_S": int(s.success.sum()),
         "n": int(s.success.size),
         "constraint_met": bool(ds.success.sum() >= s.success.sum()),
@@ -147,17 +158,18 @@ def sessions_holdout(
     refs: Sequence[Any],
     configs: Mapping[str, Mapping[str, Any]],
     on_task: Callable[[], None] | None = None,
+    mode: str = "DS",
 ) -> dict[str, dict[str, float]]:
-    """Every configuration on every held-out session, S and DS: the sessions' metrics per
-    configuration (`app.tune.trial.sessions_metrics`)."""
+    """Every configuration on every held-out session, S and the tuned `mode`: the sessions'
+    metrics per configuration (`app.tune.trial.sessions_metrics`)."""
     handles = {
-        executor.submit(session_task, ref, mode, dict(cfg)): name
+        executor.submit(session_task, ref, m.value, dict(cfg)): name
         for name, cfg in configs.items()
         for ref in refs
-        for mode in ("S", "DS")
+        for m in paired(mode)
     }
     runs = _gather(executor, handles, configs, "held-out sessions: a replay failed", on_task)
-    return {name: sessions_metrics(r) for name, r in runs.items()}
+    return {name: sessions_metrics(r, mode) for name, r in runs.items()}
 
 
 def settings_configs(

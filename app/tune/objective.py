@@ -1,6 +1,7 @@
 """What `dsteleop tune` optimises, stated once, and how a trial's metrics score against it.
 
-A trial evaluates one configuration on its sources, S and DS paired:
+A trial evaluates one configuration on its sources, the tuned mode (`--mode`, DS by default)
+and S paired:
 
     study      a fixed, seeded batch of the closed-loop study's trajectories (the same for
                every trial): metrics over trajectories
@@ -11,12 +12,12 @@ trials; `successes` and `n` beside it), `agreement` (the mean ratio of agreement
 `cosine_distance` (the mean cosine distance per action) and `time_s` (the geometric mean
 time [s]).
 
-The objective (the default: maximise DS's ratio of agreement):
+The objective (the default: maximise DS's ratio of agreement; M is the tuned mode):
 
-    value       the chosen metric of DS; with both sources, the mean of the two sources'
+    value       the chosen metric of M; with both sources, the mean of the two sources'
                 values (each weighs half)
-    constraint  (unless turned off) DS succeeds at least as often as S on the same paired
-                trials, on every source: c = successes(S) - successes(DS) <= 0
+    constraint  (unless turned off) M succeeds at least as often as S on the same paired
+                trials, on every source: c = successes(S) - successes(M) <= 0
     best        the feasible complete trial with the best value (the lowest trial number
                 among equal values)
 """
@@ -27,6 +28,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Literal
 
+from dsteleop.arbitration import Mode
 from dsteleop.errors import ConfigError
 
 Source = Literal["study", "sessions"]
@@ -62,13 +64,15 @@ class Objective:
 
     Attributes:
         kind: the sources, `study`, `sessions` or `both`.
-        metric: the DS metric optimised (maximised or minimised by its nature).
-        constrained: DS must succeed at least as often as S on every source.
+        metric: the tuned mode's metric optimised (maximised or minimised by its nature).
+        constrained: the tuned mode must succeed at least as often as S on every source.
+        mode: the tuned mode's name (any registered mode but S, the reference).
     """
 
     kind: ObjectiveKind = "study"
     metric: Metric = "agreement"
     constrained: bool = True
+    mode: str = "DS"
 
     def __post_init__(self) -> None:
         if self.kind not in OBJECTIVES:
@@ -77,6 +81,12 @@ class Objective:
             )
         if self.metric not in METRICS:
             raise ConfigError(f"unknown metric {self.metric!r} (choose from {', '.join(METRICS)})")
+        if Mode.parse(self.mode).value != self.mode:
+            raise ConfigError(f"mode {self.mode!r}: write it {Mode.parse(self.mode).value!r}")
+        if self.mode == Mode.S.value:
+            raise ConfigError(
+                "--mode S: S is the reference every trial is paired with; tune another mode"
+            )
 
     @property
     def sources(self) -> tuple[Source, ...]:
@@ -102,26 +112,27 @@ class Objective:
             "the two, each weighing half)",
         }[self.kind]
         verb = "maximise" if self.maximise else "minimise"
-        text = f"{verb} DS's {LABELS[self.metric]} on {where}"
+        text = f"{verb} {self.mode}'s {LABELS[self.metric]} on {where}"
         if self.constrained:
             text += (
-                ", subject to DS succeeding at least as often as S on the same paired trials"
-                + (" (on each source)" if self.kind == "both" else "")
+                f", subject to {self.mode} succeeding at least as often as S on the same paired "
+                "trials" + (" (on each source)" if self.kind == "both" else "")
             )
         return text
 
     def value(self, metrics: Mapping[str, float]) -> float:
         """The objective's value of one trial's metrics."""
-        vals = [float(metrics[key(s, "DS", self.metric)]) for s in self.sources]
+        vals = [float(metrics[key(s, self.mode, self.metric)]) for s in self.sources]
         return sum(vals) / len(vals)
 
     def constraints(self, metrics: Mapping[str, float]) -> list[float]:
-        """Per source, successes(S) - successes(DS): feasible when every one is <= 0
+        """Per source, successes(S) - successes(mode): feasible when every one is <= 0
         (an empty list when unconstrained)."""
         if not self.constrained:
             return []
         return [
-            float(metrics[key(s, "S", "successes")]) - float(metrics[key(s, "DS", "successes")])
+            float(metrics[key(s, "S", "successes")])
+            - float(metrics[key(s, self.mode, "successes")])
             for s in self.sources
         ]
 
@@ -137,6 +148,7 @@ class Objective:
             "kind": self.kind,
             "metric": self.metric,
             "constrained": self.constrained,
+            "mode": self.mode,
             "direction": self.direction,
             "statement": self.statement(),
         }

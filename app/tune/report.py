@@ -42,7 +42,7 @@ def metric_columns(recs: Sequence[TrialRecord]) -> list[str]:
         source = 0 if parts[0] == "study" else 1
         if len(parts) == 2:  # <source>.seconds
             return (source, 9, 0, k)
-        mode = 0 if parts[1] == "S" else 1
+        mode = 0 if parts[1] == "S" else 1  # then the tuned mode
         m = ORDER.index(parts[2]) if parts[2] in ORDER else len(ORDER)
         return (source, mode, m, k)
 
@@ -91,7 +91,7 @@ def best_json(
         "params": best.params,
     }
     if holdout and "study" in holdout:
-        g = holdout["study"]["gain_DS"]
+        g = holdout["study"][f"gain_{settings.mode}"]
         objective["holdout_gain_over_base"] = {
             "trajectories": holdout["study"]["trajectories"],
             "seed": holdout["study"]["seed"],
@@ -133,7 +133,7 @@ def _ci(d: Mapping[str, Any], digits: int = 3) -> str:
 
 def power(settings: TuneSettings, recs: Sequence[TrialRecord]) -> dict[str, Any]:
     """The tuning batch's resolution: the median over complete trials of the 95 % interval
-    half-widths of DS's agreement and cosine distance and of its success rate."""
+    half-widths of the tuned mode's agreement and cosine distance and of its success rate."""
     done = [r for r in recs if r.state == "COMPLETE"]
     if settings.batch is None or not done:
         return {}
@@ -143,11 +143,12 @@ def power(settings: TuneSettings, recs: Sequence[TrialRecord]) -> dict[str, Any]
         xs = [x for x in xs if math.isfinite(x)]
         return statistics.median(xs) if xs else None
 
-    lo, hi = med("study.DS.success_ci_low"), med("study.DS.success_ci_high")
+    m = settings.mode
+    lo, hi = med(f"study.{m}.success_ci_low"), med(f"study.{m}.success_ci_high")
     return {
         "trajectories": settings.batch.trajectories,
-        "agreement_ci_half": med("study.DS.agreement_ci_half"),
-        "cosine_distance_ci_half": med("study.DS.cosine_distance_ci_half"),
+        "agreement_ci_half": med(f"study.{m}.agreement_ci_half"),
+        "cosine_distance_ci_half": med(f"study.{m}.cosine_distance_ci_half"),
         "success_ci_half": None if lo is None or hi is None else (hi - lo) / 2.0,
     }
 
@@ -155,6 +156,7 @@ def power(settings: TuneSettings, recs: Sequence[TrialRecord]) -> dict[str, Any]
 def markdown(summary: Mapping[str, Any]) -> str:
     """summary.md from summary.json's object."""
     st = summary["settings"]
+    mode = st.get("mode", "DS")
     lines = [f"# dsteleop tune: {summary['out']}", ""]
     lines += ["## What was searched", ""]
     lines.append(
@@ -180,11 +182,11 @@ def markdown(summary: Mapping[str, Any]) -> str:
     if st["trajectories"] is not None:
         src.append(
             f"the closed-loop study (docs/sim.md): trajectories 0-{st['trajectories'] - 1} of "
-            f"seed {st['study_seed']}, the same for every trial, S and DS paired"
+            f"seed {st['study_seed']}, the same for every trial, S and {mode} paired"
         )
     if st["sessions"]:
         src.append(
-            f"{len(st['sessions'])} recorded session(s) replayed headless in S and DS with a "
+            f"{len(st['sessions'])} recorded session(s) replayed headless in S and {mode} with a "
             "fresh simulated robot: " + ", ".join(f"`{Path(p).name}`" for p in st["sessions"])
         )
     lines.append("Each trial evaluated one configuration on " + "; and ".join(src) + ".")
@@ -211,15 +213,15 @@ def markdown(summary: Mapping[str, Any]) -> str:
         for name, v in best["params"].items():
             lines.append(f"| `{name}` | {_fmt(v, 4)} | {_fmt(st['base'][name], 4)} |")
         lines += ["", "On the tuning data:", ""]
-        lines += _mode_table(best["metrics"], summary["objective"]["sources"])
-    lines += _holdout_md(summary.get("holdout"))
+        lines += _mode_table(best["metrics"], summary["objective"]["sources"], mode)
+    lines += _holdout_md(summary.get("holdout"), mode)
     pw = summary.get("power") or {}
     if pw:
         lines += [
             "",
             "## Resolution of a trial",
             "",
-            f"A trial scores DS on {pw['trajectories']} trajectories: the median 95 % "
+            f"A trial scores {mode} on {pw['trajectories']} trajectories: the median 95 % "
             f"interval half-width over trials is +-{_fmt(pw['agreement_ci_half'])} for the "
             f"ratio of agreement, +-{_fmt(pw['cosine_distance_ci_half'])} for the cosine "
             f"distance and +-{_fmt(pw['success_ci_half'])} for the success rate. Trials share "
@@ -247,17 +249,17 @@ def markdown(summary: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def _mode_table(metrics: Mapping[str, float], sources: Sequence[str]) -> list[str]:
+def _mode_table(metrics: Mapping[str, float], sources: Sequence[str], tuned: str) -> list[str]:
     rows = ["| source | mode | " + " | ".join(LABELS[m] for m in MODE_METRICS) + " |"]
     rows.append("| --- | --- |" + " --- |" * len(MODE_METRICS))
     for s in sources:
-        for mode in ("S", "DS"):
+        for mode in ("S", tuned):
             vals = [_fmt(metrics.get(f"{s}.{mode}.{m}")) for m in MODE_METRICS]
             rows.append(f"| {s} | {mode} | " + " | ".join(vals) + " |")
     return rows
 
 
-def _holdout_md(h: Mapping[str, Any] | None) -> list[str]:
+def _holdout_md(h: Mapping[str, Any] | None, tuned: str) -> list[str]:
     if not h:
         return [
             "",
@@ -277,7 +279,8 @@ def _holdout_md(h: Mapping[str, Any] | None) -> list[str]:
         )
         out.append(
             f"The base and the best configuration on {s['trajectories']} fresh trajectories of "
-            f"the closed-loop study (seed {s['seed']}; {seen}), S and DS paired; 95 % intervals:"
+            f"the closed-loop study (seed {s['seed']}; {seen}), S and {tuned} paired; 95 % "
+            "intervals:"
         )
         out += [
             "",
@@ -285,7 +288,7 @@ def _holdout_md(h: Mapping[str, Any] | None) -> list[str]:
             "| --- | --- | --- | --- | --- | --- |",
         ]
         for name in ("base", "best"):
-            for mode in ("S", "DS"):
+            for mode in ("S", tuned):
                 m = s[name][mode]
                 out.append(
                     f"| {name} | {mode} | {_fmt(m['success'])} [{_fmt(m['success_ci_low'])}, "
@@ -293,10 +296,11 @@ def _holdout_md(h: Mapping[str, Any] | None) -> list[str]:
                     f"+- {_fmt(m['agreement_ci_half'])} | {_fmt(m['cosine_distance'])} "
                     f"+- {_fmt(m['cosine_distance_ci_half'])} | {_fmt(m['time_s'], 2)} |"
                 )
-        g = s["gain_DS"]
+        g = s[f"gain_{tuned}"]
         out += [
             "",
-            "Gain of the best configuration's DS over the base's DS (mean paired difference "
+            f"Gain of the best configuration's {tuned} over the base's {tuned} (mean paired "
+            "difference "
             "over trajectories, 95 % interval, paired t-test p):",
             "",
             "| metric | best - base | p |",
@@ -307,11 +311,11 @@ def _holdout_md(h: Mapping[str, Any] | None) -> list[str]:
             f"{_p(g['cosine_distance']['p_value'])} |",
             f"| time (ratio of geometric means) | {_ci(g['time_ratio'])} | |",
         ]
-        c = s["tuned_DS_vs_S"]
+        c = s[f"tuned_{tuned}_vs_S"]
         out += [
             "",
-            f"The constraint on the held-out trajectories: the best configuration's DS "
-            f"succeeded {c['successes_DS']} times, its S {c['successes_S']} times of "
+            f"The constraint on the held-out trajectories: the best configuration's {tuned} "
+            f"succeeded {c[f'successes_{tuned}']} times, its S {c['successes_S']} times of "
             f"{c['n']} ({'met' if c['constraint_met'] else 'NOT met'}; N-1 chi-squared p = "
             f"{_p(c['success_n1_chi2_p'])}).",
         ]
@@ -321,7 +325,7 @@ def _holdout_md(h: Mapping[str, Any] | None) -> list[str]:
         for name in ("base", "best"):
             out.append(f"{name}:")
             out.append("")
-            out += _mode_table(ss[name], ["sessions"])
+            out += _mode_table(ss[name], ["sessions"], tuned)
             out.append("")
     elif h.get("sessions_note"):
         out += ["", h["sessions_note"]]

@@ -1,6 +1,7 @@
 """The search space of `dsteleop tune`: which arbitration hyper-parameters vary, over what.
 
-One `--space NAME=SPEC` per parameter; NAME is any field of `ArbitrationConfig`:
+One `--space NAME=SPEC` per parameter; NAME is any field of `ArbitrationConfig`, or a mode's
+own parameter written `<mode>.<field>` (`scalar.cap`):
 
     NAME=LOW:HIGH          uniform on [LOW, HIGH] (integers only, for an integer field)
     NAME=log:LOW:HIGH      log-uniform on [LOW, HIGH], 0 < LOW
@@ -8,8 +9,10 @@ One `--space NAME=SPEC` per parameter; NAME is any field of `ArbitrationConfig`:
     NAME=intlog:LOW:HIGH   integers LOW..HIGH, log-uniform (1 <= LOW)
     NAME=V1,V2,...         these values only (a categorical choice)
 
-Without `--space`, the paper's own list of hyper-parameters to tune (its limitation 1, eq (5)
-and (7) and the temporal window) over ranges about their defaults: `DEFAULT_SPACE`.
+Without `--space`, the tuned mode's own default space, stated next to the mode
+(`arbitration/modes/<mode>.py`, `ModeSpec.space`): for DS the paper's own list of
+hyper-parameters to tune (its limitation 1, eq (5) and (7) and the temporal window) over
+ranges about their defaults (`DEFAULT_SPACE`), for the scalar baseline its cap and scale.
 
 Grid search (`--sampler grid`) needs finite values: a choice keeps its values, an integer
 range all its integers up to `points` of them, a range `points` values evenly spaced (log
@@ -29,25 +32,31 @@ from typing import Any, Literal
 
 import numpy as np
 
-from dsteleop.arbitration import ArbitrationConfig
+from dsteleop.arbitration import ArbitrationConfig, Mode
 from dsteleop.errors import ConfigError
 
 Kind = Literal["float", "log", "int", "intlog", "choice"]
 Value = float | int
 
-#: The defaults of `--space`: eq (5)'s kappa, eq (7)'s p, q, b and the window (docs/METHOD.md
-#: §6), each over about one order of magnitude around its default.
-DEFAULT_SPACE: tuple[str, ...] = (
-    "kappa=log:1:40",
-    "p=log:1.5:12",
-    "q=log:1.5:12",
-    "b=log:0.25:4",
-    "window=int:1:15",
-)
+#: DS's default `--space`: eq (5)'s kappa, eq (7)'s p, q, b and the window (docs/METHOD.md
+#: §6), each over about one order of magnitude around its default (`arbitration/modes/ds.py`).
+DEFAULT_SPACE: tuple[str, ...] = Mode.DS.spec.space
+
+
+def default_space(mode: str) -> tuple[str, ...]:
+    """The default `--space` of `mode` (its plug-in's); a ConfigError if it has none."""
+    m = Mode.parse(mode)
+    if not m.spec.space:
+        raise ConfigError(
+            f"--mode {m.value} has no parameters of its own to tune; give --space NAME=SPEC"
+        )
+    return m.spec.space
+
 
 SPACE_GRAMMAR = (
     "NAME=LOW:HIGH, NAME=log:LOW:HIGH, NAME=int:LOW:HIGH, NAME=intlog:LOW:HIGH or "
-    "NAME=V1,V2,... (NAME: a field of the arbitration configuration)"
+    "NAME=V1,V2,... (NAME: a field of the arbitration configuration or a mode's own "
+    "parameter, MODE.FIELD)"
 )
 
 
@@ -161,9 +170,9 @@ def parse_dimension(item: str) -> Dimension:
     return Dimension(name, kind, low=lo, high=hi, spec=item)
 
 
-def parse_space(items: Sequence[str]) -> tuple[Dimension, ...]:
-    """The dimensions of `--space` items (the defaults when there are none)."""
-    dims = tuple(parse_dimension(s) for s in (items or DEFAULT_SPACE))
+def parse_space(items: Sequence[str], mode: str = "DS") -> tuple[Dimension, ...]:
+    """The dimensions of `--space` items (the tuned mode's defaults when there are none)."""
+    dims = tuple(parse_dimension(s) for s in (items or default_space(mode)))
     names = [d.name for d in dims]
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:

@@ -1,12 +1,12 @@
 """The trial functions of `dsteleop tune`: plain Python, no Ray, no Optuna.
 
-A trial evaluates one arbitration configuration, S and DS paired, on its sources
+A trial evaluates one arbitration configuration, S and the tuned mode paired, on its sources
 (app/tune/objective.py). Each function here is one unit of work (one task on a cluster) and
 takes only picklable values, so the same function runs in this process, in a process pool or
 as a Ray task:
 
     study_task     the tuning batch of the closed-loop study (`app.study.core.run_chunk`,
-                   S and DS of every trajectory in one batch) -> flat metrics
+                   S and the tuned mode of every trajectory in one batch) -> flat metrics
     study_chunk    some trajectories of a batch -> the per-trajectory results (`ChunkResult`;
                    the held-out evaluation merges them)
     session_task   one headless replay of one session in one mode (`app.replay.core`)
@@ -35,7 +35,12 @@ from dsteleop.errors import InputError
 
 #: The files of a session a replay reads (no video: replays do not re-track).
 SESSION_FILES: tuple[str, ...] = ("meta.json", "ticks.jsonl")
-PAIRED: tuple[Mode, ...] = (Mode.S, Mode.DS)
+
+
+def paired(mode: str) -> tuple[Mode, Mode]:
+    """The modes of a trial: S, the reference, and the tuned mode."""
+    return (Mode.S, Mode.parse(mode))
+
 
 #: A session as a worker gets it: a path, or (name, {file name: bytes}).
 SessionRef = str | tuple[str, dict[str, bytes]]
@@ -48,17 +53,19 @@ class StudyBatch:
     Attributes:
         trajectories: how many: indices 0 .. trajectories - 1.
         seed: the study's master seed; trajectory n is seeded by (seed, n) alone.
+        mode: the tuned mode (paired with S).
     """
 
     trajectories: int
     seed: int
+    mode: str = "DS"
 
     def config(self, arbitration: ArbitrationConfig) -> SimConfig:
-        """The study of this batch under `arbitration`, S and DS, no paths kept."""
+        """The study of this batch under `arbitration`, S and the mode, no paths kept."""
         return SimConfig(
             trajectories=self.trajectories,
             seed=self.seed,
-            modes=PAIRED,
+            modes=paired(self.mode),
             max_paths=0,
             arbitration=arbitration,
         )
@@ -68,13 +75,13 @@ def study_chunk(
     batch: StudyBatch, arbitration: Mapping[str, Any], indices: Sequence[int]
 ) -> ChunkResult:
     """Trajectories `indices` of `batch` under the configuration `arbitration` (a dict of
-    ArbitrationConfig fields; an invalid one raises ConfigError), S and DS in one batch."""
+    ArbitrationConfig fields; an invalid one raises ConfigError), S and the mode in one batch."""
     cfg = batch.config(ArbitrationConfig.from_dict(dict(arbitration)))
     return run_chunk(cfg, list(indices))
 
 
 def study_task(batch: StudyBatch, arbitration: Mapping[str, Any]) -> dict[str, float]:
-    """One trial on the study: every trajectory of `batch`, S and DS.
+    """One trial on the study: every trajectory of `batch`, S and the tuned mode.
 
     Returns:
         `study.<MODE>.<metric>` for each of `app.study.core.headline`'s keys, and
@@ -83,7 +90,7 @@ def study_task(batch: StudyBatch, arbitration: Mapping[str, Any]) -> dict[str, f
     t0 = time.perf_counter()
     chunk = study_chunk(batch, arbitration, range(batch.trajectories))
     out: dict[str, float] = {}
-    for mode in PAIRED:
+    for mode in paired(batch.mode):
         for name, v in headline(chunk.modes[mode.value]).items():
             out[key("study", mode.value, name)] = v
     out["study.seconds"] = time.perf_counter() - t0
@@ -140,9 +147,10 @@ def _replay(folder: Path, mode: Mode, config: ArbitrationConfig) -> dict[str, An
     return core.session_summary(session.name, trace.recorded_s, [trace])
 
 
-def sessions_metrics(runs: Sequence[Mapping[str, Any]]) -> dict[str, float]:
+def sessions_metrics(runs: Sequence[Mapping[str, Any]], mode: str = "DS") -> dict[str, float]:
     """The sessions' metrics of one trial from its replays (`session_task` results, any
-    order): per mode, over sessions, as `dsteleop replay` aggregates them.
+    order): per mode (S and the tuned `mode`), over sessions, as `dsteleop replay` aggregates
+    them.
 
     Returns:
         `sessions.<MODE>.<metric>` for success (Laplace), successes, n, agreement,
@@ -158,10 +166,11 @@ def sessions_metrics(runs: Sequence[Mapping[str, Any]]) -> dict[str, float]:
         )
         entry["modes"].update(run["modes"])
     sessions = [by_name[n] for n in sorted(by_name)]
-    agg, _ = aggregate(sessions, [m.value for m in PAIRED])
+    modes = paired(mode)
+    agg, _ = aggregate(sessions, [m.value for m in modes])
     out: dict[str, float] = {}
-    for mode in PAIRED:
-        a = agg[mode.value]
+    for m in modes:
+        a = agg[m.value]
         sr, gm = a["success_rate"], a["time_s"]
         values = {
             "success": sr["laplace"] if sr else math.nan,
@@ -172,7 +181,7 @@ def sessions_metrics(runs: Sequence[Mapping[str, Any]]) -> dict[str, float]:
             "time_s": _num(gm["mean"]) if gm else math.nan,
         }
         for name in ("successes", "n", *MODE_METRICS):
-            out[key("sessions", mode.value, name)] = values[name]
+            out[key("sessions", m.value, name)] = values[name]
     out["sessions.seconds"] = float(sum(r.get("seconds", 0.0) for r in runs))
     return out
 

@@ -50,13 +50,18 @@ from dsteleop.app.viewer.panel import (
     style_html,
 )
 from dsteleop.app.viewer.scene import SceneView
-from dsteleop.arbitration import ArbitrationConfig, ArbitrationStep, HandState
+from dsteleop.arbitration import ArbitrationConfig, ArbitrationStep, HandState, registered
 from dsteleop.errors import ConfigError, InputError
 from dsteleop.robot.scene import SceneGeometry
 
 log = logging.getLogger(__name__)
 
-MODES: tuple[str, ...] = ("DS", "S", "manual", "autonomous")
+
+def mode_names() -> tuple[str, ...]:
+    """The modes the dropdown offers: every registered one (`arbitration.modes`)."""
+    return tuple(m.value for m in registered())
+
+
 DEFAULT_UTENSILS: tuple[str, ...] = ("spoon", "spatula", "ladle")
 
 
@@ -299,7 +304,8 @@ class Viewer:
         with self._camera_folder:
             self._camera_note = gui.add_html('<div class="dst-note">no camera image</div>')
         with gui.add_folder("Controls"):
-            mode = gui.add_dropdown("Mode", MODES, initial_value=MODES[0])
+            names = mode_names()
+            mode = gui.add_dropdown("Mode", names, initial_value=names[0])
             self._mode: Any = mode
 
             @mode.on_update
@@ -445,7 +451,7 @@ class Viewer:
             if self._plot is not None and now - self._t_plot >= 1.0 / self.config.plot_hz:
                 self._t_plot = now
                 self._plot.data = self._history.data()
-            if snap.mode.value in MODES and self._mode.value != snap.mode.value:
+            if snap.mode.value in mode_names() and self._mode.value != snap.mode.value:
                 self._mode.value = snap.mode.value  # follow the loop (posted by no one)
         self.stats.panel_updates += 1
 

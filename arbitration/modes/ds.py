@@ -1,0 +1,120 @@
+"""`DS`, dimension-specific shared autonomy, eq (8), with its moving windows.
+
+    B_f,i    = mean of B_i over the last `window` ticks (the window starts full of ones, so B
+               starts at 1)
+    a_i      = clip((P(R_i) - P(H_i)) * B_f,i + P(H_i), 0, 1)                            (8)
+    alpha_i  = mean of a_i over the last min(ticks seen, window) ticks
+
+The windows are DS's own filter state (`Windows`), over the rows of the batch (rows of other
+modes in a mixed batch keep theirs unchanged); they restart, with the segment, at each new
+goal (`Arbiter.initial_state`). DS reports the filtered B. Its parameters are the shared ones
+its alpha depends on (kappa of eq (5), p, q, b of eq (7), `window`), fields of
+`ArbitrationConfig`; its default tuning space searches them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dsteleop.arbitration.allocation import ds_alpha_of
+from dsteleop.arbitration.jit import kernel
+from dsteleop.arbitration.modes.base import Array, ModeSpec, Quantities, Rows
+
+if TYPE_CHECKING:
+    from dsteleop.arbitration.config import ArbitrationConfig
+
+
+@dataclass(frozen=True)
+class Windows:
+    """DS's moving windows over the last W ticks, for a batch of M rows.
+
+    Each window is an array (W, M, 6 + F), oldest tick first, read-only: a tick makes new
+    windows (the last W - 1 rows and its own), so an earlier state stays valid.
+
+    Attributes:
+        alpha_window: raw alpha samples (eq 8 on the filtered B, clipped); zeros before the
+            first tick (the mean divides by min(count, W) filled samples).
+        B_window: raw willingness samples (eq 7); the window starts full of ones.
+        count: ticks DS has stepped these windows.
+    """
+
+    alpha_window: Array
+    B_window: Array
+    count: int
+
+    def select(self, keep: NDArray[np.bool_]) -> Windows:
+        """The windows of the batch rows `keep`."""
+        a, b = self.alpha_window[:, keep], self.B_window[:, keep]
+        a.flags.writeable = b.flags.writeable = False
+        return Windows(a, b, self.count)
+
+
+def initial_state(config: ArbitrationConfig, dims: int, M: int) -> Windows:
+    zeros, ones = np.zeros((config.window, M, dims)), np.ones((config.window, M, dims))
+    zeros.flags.writeable = ones.flags.writeable = False
+    return Windows(zeros, ones, 0)
+
+
+def alpha(params: None, q: Quantities, rows: Rows, state: Windows) -> Windows:
+    new_alpha, new_B = _windows_rows(
+        q.P_robot, q.P_human, q.B, q.alpha,
+        _read_only(state.alpha_window), _read_only(state.B_window), state.count, rows,
+    )  # fmt: skip
+    new_alpha.flags.writeable = new_B.flags.writeable = False
+    return Windows(new_alpha, new_B, state.count + 1)
+
+
+def _read_only(window: Array) -> Array:
+    """The window as the kernel always receives it (one compiled version): read-only."""
+    if not window.flags.writeable:
+        return window
+    view = window.view()
+    view.flags.writeable = False
+    return view
+
+
+@kernel
+def _windows_rows(
+    P_r: Array, P_h: Array, B: Array, alpha: Array, alpha_window: Array, B_window: Array,
+    count: int, rows: Rows,
+) -> tuple[Array, Array]:  # fmt: skip
+    """Eq (8) on the windows for the batch rows `rows`: writes alpha and the filtered B into
+    their rows, returns the new windows (other rows: their old ones, shifted)."""
+    W, M, D = B_window.shape
+    new_alpha, new_B = np.empty((W, M, D)), np.empty((W, M, D))
+    new_alpha[: W - 1] = alpha_window[1:]
+    new_B[: W - 1] = B_window[1:]
+    if rows.shape[0] != M:
+        new_alpha[W - 1] = alpha_window[W - 1]
+        new_B[W - 1] = B_window[W - 1]
+    for k in range(rows.shape[0]):
+        m = rows[k]
+        for i in range(D):
+            B_f = B_window[1, m, i] if W > 1 else 0.0
+            for w in range(2, W):
+                B_f += B_window[w, m, i]
+            B_f = (B_f + B[m, i]) / W if W > 1 else B[m, i] / W
+            a_raw = ds_alpha_of(P_r[m, i], P_h[m, i], B_f)
+            a_sum = alpha_window[1, m, i] if W > 1 else 0.0
+            for w in range(2, W):
+                a_sum += alpha_window[w, m, i]
+            a_sum = a_sum + a_raw if W > 1 else a_raw
+            new_B[W - 1, m, i] = B[m, i]
+            new_alpha[W - 1, m, i] = a_raw
+            alpha[m, i] = a_sum / min(count + 1, W)
+            B[m, i] = B_f  # the filtered B is the one reported
+    return new_alpha, new_B
+
+
+SPEC = ModeSpec(
+    "DS",
+    "DS",
+    alpha,
+    "eq (8) per dimension, on moving windows of B and alpha",
+    space=("kappa=log:1:40", "p=log:1.5:12", "q=log:1.5:12", "b=log:0.25:4", "window=int:1:15"),
+    initial_state=initial_state,
+)
