@@ -4,7 +4,14 @@ The paper's own study names three impairments that make assistance worth having 
 IV-C): noise on the robot's goal, an induced teleoperation delay, and a single camera view in
 which depth is hard to judge. Each is one mechanism with its own parameters here; the study,
 the sweep (`dsteleop sim --sweep`) and the demo person read the same object. docs/operator.md
-gives each parameter's source; they are fixed from the literature, never tuned to a result.
+gives each parameter's source; they are fixed from the literature, never tuned to a result
+(written down on 2026-12-02 before any S vs DS comparison of this world was run).
+
+The camera (`view_axis`): in the planar study and in the demo's kitchen alike, the operator
+sees the robot through one camera whose optical axis lies along the robot base's x axis
+(the demo's virtual camera faces the operator with the mirror mapping, its optical axis
+being base -x; the study's camera stands in front of the planar workspace looking back along
+-x, the paper's single Kinect view of Fig. 7), so depth is base x and the screen shows y, z.
 
     goal noise     the robot's goal = the true goal + N(0, goal_sigma_m^2) per position axis
     delay          the operator's command reaches the robot `delay_s` late, and the robot's
@@ -38,9 +45,9 @@ class Impairments:
     """
 
     goal_sigma_m: float = 0.02
-    delay_s: float = 0.0
-    depth_sigma_m: float = 0.002
-    lateral_sigma_m: float = 0.002
+    delay_s: float = 0.2
+    depth_sigma_m: float = 0.015
+    lateral_sigma_m: float = 0.003
     view_axis: tuple[float, float, float] = (1.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
