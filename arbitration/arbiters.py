@@ -87,7 +87,9 @@ class ArbitrationInput:
         X_start: the robot's state when the active goal started.
         X_goal: the goal the robot knows.
         dt: tick length [s].
-        history_term: (6 + F,) mean unit direction of previous attempts (eq 6); None if none.
+        history_term: (6 + F,) mean unit direction of previous attempts (eq 6), shared by
+            every row, or (..., 6 + F) one per row of the batch (each row its own
+            operator); None if none.
         X_ref: the commanded reference eq (2) integrates from (the previous X_next); None
             for a kinematic plant, whose reference is X_current.
     """
@@ -263,7 +265,7 @@ class Arbiter:
         arrays: tuple[Any, ...] = tuple(a for X in (*states, X_ref) for a in state_input(X, batch))
         out, p, R, g, alpha_w, B_w = _tick(  # type: ignore[call-arg]
             *arrays,
-            as_input(history, (), 1)[0],
+            as_input(history, batch, 1),
             codes,
             _per_dim_params(cfg, F, dt),
             dt, float(cfg.kappa), float(cfg.p), float(cfg.q), float(cfg.b),
@@ -321,7 +323,7 @@ def _tick(
     Tp: Array, TR: Array, Tg: Array,  # X_start
     Gp: Array, GR: Array, Gg: Array,  # X_goal
     Rp: Array, RR: Array, Rg: Array,  # X_ref
-    history: Array, codes: NDArray[np.int8], params: Array,
+    history: Array, codes: NDArray[np.int8], params: Array,  # history (M or 1, 6 + F)
     dt: float, kappa: float, p: float, q: float, b: float, psi_floor: float,
     floor_m: float, max_lead_m: float, max_lead_rad: float, bounded: bool,
     alpha_window: Array, B_window: Array, count: int, push: bool, M: int,
@@ -367,6 +369,7 @@ def _tick(
         h, hp, hs = row(Hp.shape[0], m), row(Pp.shape[0], m), row(Sp.shape[0], m)
         c, cp, cs = row(Cp.shape[0], m), row(Qp.shape[0], m), row(Tp.shape[0], m)
         gl, rf = row(Gp.shape[0], m), row(Rp.shape[0], m)
+        hr = row(history.shape[0], m)
         diff_into(Gp, GR, Gg, gl, Hp, HR, Hg, h, d, _GOAL_H)
         diff_into(Gp, GR, Gg, gl, Cp, CR, Cg, c, d, _GOAL_R)
         diff_into(Hp, HR, Hg, h, Pp, PR, Pg, hp, d, _PREV_H)
@@ -389,11 +392,11 @@ def _tick(
         unit_directions_into(d, _PREV_H, still_step, u, 0)
         unit_directions_into(d, _START_H, still_offset, u, 1)
         for i in range(D):
-            psi_h[m, i] = speed_change_of(U_h[m, i], v_max[i], u[0, i], u[1, i], history[i])
+            psi_h[m, i] = speed_change_of(U_h[m, i], v_max[i], u[0, i], u[1, i], history[hr, i])
         unit_directions_into(d, _PREV_R, still_step, u, 0)
         unit_directions_into(d, _START_R, still_offset, u, 1)
         for i in range(D):
-            psi_r[m, i] = speed_change_of(U_r[m, i], v_max[i], u[0, i], u[1, i], history[i])
+            psi_r[m, i] = speed_change_of(U_r[m, i], v_max[i], u[0, i], u[1, i], history[hr, i])
         for i in range(D):
             B[m, i] = willingness_of(psi_h[m, i], psi_r[m, i], p, q, b, psi_floor)
         # Alpha: eq (8) on the windows (DS), eq (3) (S), or fixed.

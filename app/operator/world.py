@@ -26,9 +26,14 @@ being base -x; the study's camera stands in front of the planar workspace lookin
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
+
+from dsteleop.arbitration.se3 import HandState
 from dsteleop.errors import ConfigError
 
 
@@ -62,6 +67,22 @@ class Impairments:
         if len(axis) != 3 or not math.isfinite(n) or abs(n - 1.0) > 1e-6:
             raise ConfigError(f"view_axis must be a unit 3-vector, got {self.view_axis!r}")
 
+    @classmethod
+    def unimpaired(cls) -> Impairments:
+        """A world without the impairments: the robot knows the true goal, no link delay, and
+        the robot seen as precisely along the view as across it (the lateral sd)."""
+        lateral = cls().lateral_sigma_m
+        return cls(goal_sigma_m=0.0, delay_s=0.0, depth_sigma_m=lateral, lateral_sigma_m=lateral)
+
+    def describe(self) -> str:
+        """One line for a status or a log."""
+        a = ", ".join(f"{v:g}" for v in self.view_axis)
+        return (
+            f"goal noise {1000 * self.goal_sigma_m:g} mm, delay {1000 * self.delay_s:g} ms each "
+            f"way, single view along ({a}): depth {1000 * self.depth_sigma_m:g} mm, lateral "
+            f"{1000 * self.lateral_sigma_m:g} mm"
+        )
+
     def replace(self, **changes: Any) -> Impairments:
         return replace(self, **changes)
 
@@ -69,3 +90,30 @@ class Impairments:
         d = asdict(self)
         d["view_axis"] = list(self.view_axis)
         return d
+
+
+class CommandDelay:
+    """The command path of the teleoperation delay: the hands (a batch) as the robot receives
+    them, `ticks` ticks late (the start hand until then).
+
+    Args:
+        start: the hands at the start (batch (N,)).
+        ticks: the delay in ticks, >= 0 (round(delay_s / dt)).
+    """
+
+    def __init__(self, start: HandState, ticks: int) -> None:
+        if ticks < 0:
+            raise ConfigError(f"a delay of {ticks} ticks")
+        self.ticks = ticks
+        self._queue: deque[HandState] = deque([start] * ticks)
+
+    def push(self, hand: HandState) -> HandState:
+        """Send the hands of this tick; the hands the robot receives this tick."""
+        if self.ticks == 0:
+            return hand
+        self._queue.append(hand)
+        return self._queue.popleft()
+
+    def select(self, keep: NDArray[np.bool_]) -> None:
+        """Keep only the rows `keep`."""
+        self._queue = deque(H.take(keep) for H in self._queue)
