@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from numpy.typing import NDArray
 
 from dsteleop.app.cli.main import main
 from dsteleop.app.operator.world import Impairments
@@ -377,7 +378,7 @@ def test_a_history_term_per_row_is_each_rows_own() -> None:
     h = np.array([[0.5, -0.5, 0, 0, 0, 1.0], [-0.7, 0.7, 0, 0, 0, -1.0]])
     arb = make_arbiter(Mode.DS)
 
-    def step(rows: list[int], hist: np.ndarray) -> np.ndarray:
+    def step(rows: list[int], hist: NDArray[np.float64]) -> NDArray[np.float64]:
         sel = np.array(rows)
         inp = ArbitrationInput(
             X_human=H.take(sel), X_human_prev=Hp.take(sel), X_human_start=Hs.take(sel),
