@@ -6,19 +6,25 @@ hand starts where the robot starts and reaches for an object's handle at `handle
 grasp normal is `handle_normal_rad`. For trajectory n (seeded by (seed, n) alone, so results
 do not depend on batching or workers):
 
-    robot goal       handle position + N(0, goal_sigma_m^2 I_2), heading = normal +
-                     N(0, goal_heading_sigma_rad^2) (the same draws for every operator kind)
+    robot goal       handle position + N(0, world.goal_sigma_m^2 I_2), heading = normal +
+                     N(0, goal_heading_sigma_rad^2) (the same draws for every operator kind;
+                     each run of a closed-loop person its own draws)
     robot            X_{k+1} = integrate(X_k, U_out_k, dt), eq (1)-(2), U_human_k from the
                      hand's motion H_k -> H_{k+1}, under each mode (S, DS, manual,
                      autonomous) with the same operator and goal noise (paired)
 
 Operators:
 
-    closed-loop      (the default) `app.operator.closed_loop`: watches the robot with a
-                     delay and steers it to the TRUE handle, with its own preferred grasp
+    closed-loop      (the default) `app.operator.closed_loop`, in the world `cfg.world`
+                     (docs/operator.md): watches the robot through the link's delay and one
+                     camera, and steers it to the TRUE handle, with its own preferred grasp
                      heading (normal - U(side_offset_rad)), y first with probability 0.8,
-                     the heading turning only near the handle; the trial ends when it is
-                     satisfied and holds, or gives up (patience), or after max_trial_s
+                     the heading turning only near the handle, settling for the task's goal
+                     and tolerance once the robot resists it; the arbitration receives its
+                     hand world.delay_s late. A run ends `world.delay_s + grasp_s` after it
+                     commits (satisfied and held: the grasp has settled), or when it gives up
+                     (patience), or after max_trial_s. Each person makes `attempts` runs per
+                     mode, eq (6)'s history term fed from its previous runs in that mode
     side, aligned    open loop (`app.operator.open_loop`): a sampled trajectory that does not
                      watch the robot, to the handle with heading normal - U(side_offset_rad)
                      (side) or the normal (aligned); the trial lasts as long as it
@@ -26,7 +32,8 @@ Operators:
                      (close to the goal early) and deviating late by U(deviate_rad)
 
 Success: the robot's final pose is within `success_radius_m` of the TRUE handle position
-and within `success_heading_rad` of the normal. Time: the trial's duration for the closed-loop
+and within `success_heading_rad` of the normal (closed loop: the settled pose after a commit;
+a run that ends by giving up fails). Time: the trial's duration for the closed-loop
 operator (it decides when it is done); for an open-loop one, the time from which the robot
 stays in the success region to the end (its settling time), or the whole trial on failure.
 
