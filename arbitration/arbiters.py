@@ -71,7 +71,9 @@ class ArbitrationInput:
         X_start: the robot's state when the active goal started.
         X_goal: the goal the robot knows.
         dt: tick length [s].
-        history_term: (6 + F,) mean unit direction of previous attempts (eq 6); None if none.
+        history_term: (6 + F,) mean unit direction of previous attempts (eq 6), shared by
+            every row, or (..., 6 + F) one per row of the batch (each row its own
+            operator); None if none.
         X_ref: the commanded reference eq (2) integrates from (the previous X_next); None
             for a kinematic plant, whose reference is X_current.
     """
@@ -295,7 +297,7 @@ class Arbiter:
         s = tuple(state_input(X, batch) for X in (*states, X_ref))
         history = np.zeros(D) if inp.history_term is None else inp.history_term
         out, l1 = _shared(
-            s, as_input(history, (), 1)[0], _per_dim_params(cfg, F, dt),
+            s, as_input(history, batch, 1), _per_dim_params(cfg, F, dt),
             dt, float(cfg.kappa), float(cfg.p), float(cfg.q), float(cfg.b),
             float(cfg.psi_robot_floor), float(cfg.alloc_floor_m), M,
         )  # fmt: skip
@@ -403,7 +405,7 @@ def _shared(
     for m in range(M):
         h, hp, hs = row(Hp.shape[0], m), row(Pp.shape[0], m), row(Sp.shape[0], m)
         c, cp, cs = row(Cp.shape[0], m), row(Qp.shape[0], m), row(Tp.shape[0], m)
-        gl = row(Gp.shape[0], m)
+        gl, hr = row(Gp.shape[0], m), row(history.shape[0], m)
         diff_into(Gp, GR, Gg, gl, Hp, HR, Hg, h, d, _GOAL_H)
         diff_into(Gp, GR, Gg, gl, Cp, CR, Cg, c, d, _GOAL_R)
         diff_into(Hp, HR, Hg, h, Pp, PR, Pg, hp, d, _PREV_H)
@@ -426,11 +428,11 @@ def _shared(
         unit_directions_into(d, _PREV_H, still_step, u, 0)
         unit_directions_into(d, _START_H, still_offset, u, 1)
         for i in range(D):
-            psi_h[m, i] = speed_change_of(U_h[m, i], v_max[i], u[0, i], u[1, i], history[i])
+            psi_h[m, i] = speed_change_of(U_h[m, i], v_max[i], u[0, i], u[1, i], history[hr, i])
         unit_directions_into(d, _PREV_R, still_step, u, 0)
         unit_directions_into(d, _START_R, still_offset, u, 1)
         for i in range(D):
-            psi_r[m, i] = speed_change_of(U_r[m, i], v_max[i], u[0, i], u[1, i], history[i])
+            psi_r[m, i] = speed_change_of(U_r[m, i], v_max[i], u[0, i], u[1, i], history[hr, i])
         for i in range(D):
             B[m, i] = willingness_of(psi_h[m, i], psi_r[m, i], p, q, b, psi_floor)
         # Eq (3)'s distances, the robot's position (S and the scalar baseline read them).

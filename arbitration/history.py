@@ -52,8 +52,7 @@ class OperatorHistory:
             return np.zeros(dim)
         starts = HandState.from_rotvec(*_split([a.start for a in usable]))
         terms = HandState.from_rotvec(*_split([a.terminal for a in usable]))
-        # unit_directions is dimension-first: (6 + F, N) in, the mean over the N attempts out.
-        return np.asarray(unit_directions(diff(terms, starts).T, threshold).mean(-1))
+        return history_terms(starts, terms, threshold)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -87,3 +86,13 @@ def _flatten(X: HandState) -> tuple[float, ...]:
 def _split(rows: list[tuple[float, ...]]) -> tuple[Array, Array, Array]:
     a = np.asarray(rows, dtype=np.float64)
     return a[:, 0:3], a[:, 3:6], a[:, 6:]
+
+
+def history_terms(starts: HandState, terminals: HandState, threshold: Array) -> Array:
+    """The term for a batch of operators at once: their attempts' starts and terminal states,
+    batch (..., A) (A attempts each, A >= 1), in; (..., 6 + F) out, the mean over the A
+    attempts of the unit directions from start to terminal."""
+    d = diff(terminals, starts)  # (..., A, 6 + F)
+    # unit_directions is dimension-first: (6 + F, ..., A) in, the mean over the attempts out.
+    u = unit_directions(np.moveaxis(d, -1, 0), threshold).mean(-1)
+    return np.asarray(np.moveaxis(u, 0, -1))

@@ -31,11 +31,14 @@ def outcome(mode: Mode, seed: int) -> str:
 @pytest.mark.slow
 @pytest.mark.parametrize("mode", [Mode.DS, Mode.S, Mode.MANUAL])
 def test_the_demo_succeeds_on_most_seeds(mode: Mode) -> None:
-    """Measured on this project's machines: at least 9 of seeds 0-9 succeed in each mode
-    (README). The test allows one more failure, for another CPU's physics."""
+    """Measured on this project's machines in the operator's world (docs/operator.md: goal
+    noise 2 cm, a 0.2 s delay each way, depth misjudged through the one camera): 7 of seeds
+    0-9 succeed in each of DS, S and manual (before the world, without delay or depth error
+    and with 1 cm goal noise: at least 9). The test allows one more failure, for another
+    CPU's physics."""
     outcomes = [outcome(mode, s) for s in SEEDS]
     assert "none" not in outcomes, outcomes  # every run ends, with an outcome
-    assert outcomes.count("success") >= 8, outcomes
+    assert outcomes.count("success") >= 6, outcomes
 
 
 def test_run_prints_the_outcome_in_its_json_line() -> None:

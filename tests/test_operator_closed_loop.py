@@ -15,6 +15,7 @@ import pytest
 from numpy.typing import NDArray
 
 from dsteleop.app.operator.closed_loop import ClosedLoopOperator, Intention, OperatorProfile
+from dsteleop.app.operator.world import CommandDelay, Impairments
 from dsteleop.arbitration import HandState, so3_exp
 from dsteleop.arbitration.se3 import stack
 
@@ -40,13 +41,24 @@ def one_stage(
     )
 
 
+#: The mechanisms of the person alone: no link delay, the robot seen as well along the view as
+#: across it (the world's impairments have their own tests below).
+CLEAR = Impairments.unimpaired()
+
+
 def operators(
-    n: int, seed: int = 0, target: HandState | None = None, **profile: object
+    n: int,
+    seed: int = 0,
+    target: HandState | None = None,
+    world: Impairments = CLEAR,
+    intention: Intention | None = None,
+    **profile: object,
 ) -> ClosedLoopOperator:
     start = stack([planar(0.0, 0.0, 0.0)] * n)
     rngs = [np.random.default_rng([seed, i]) for i in range(n)]
     target = target or planar(0.3, 0.4, 0.5)
-    return ClosedLoopOperator(one_stage(target, n), start, OperatorProfile(**profile), rngs)  # type: ignore[arg-type]
+    plan = intention or one_stage(target, n)
+    return ClosedLoopOperator(plan, start, OperatorProfile(**profile), rngs, world=world)  # type: ignore[arg-type]
 
 
 def run(
@@ -87,6 +99,7 @@ def test_same_seed_same_hands_and_rows_do_not_depend_on_the_batch() -> None:
         stack([planar(0.0, 0.0, 0.0)]),
         OperatorProfile(),
         [np.random.default_rng([4, 1])],
+        world=CLEAR,
     )
     c_h, _ = run(alone, follows, 6.0)
     n = min(len(c_h), len(a_h))
@@ -131,13 +144,15 @@ def test_submovements_are_minimum_jerk_and_intermittent() -> None:
 
 
 def test_satisfied_within_its_tolerance_then_done() -> None:
-    """A robot that follows the hand: the operator brings it within its tolerance, holds,
-    and is done (not given up), well before its patience."""
+    """A robot that follows the hand: the operator brings it within its tolerance (as it
+    sees it: each person misjudges the robot's position by a few mm), holds, and commits
+    (not given up), well before its patience."""
     op = operators(30, seed=3)
     target = planar(0.3, 0.4, 0.5)
     _, robots = run(op, follows, 30.0)
-    assert op.done.all() and not op.gave_up.any()
-    assert np.all(error_m(robots[-1], target) <= 0.01 + 1e-9)
+    assert op.done.all() and not op.gave_up.any() and op.committed.all()
+    err = error_m(robots[-1], target)
+    assert np.all(err <= 0.01 + 0.012) and np.median(err) <= 0.01
     assert np.all(op.t_done > 1.0) and np.all(op.t_done < 20.0)
     assert np.median(op.t_done) < 9.0
 
@@ -154,9 +169,10 @@ def test_it_steers_the_robot_not_its_hand() -> None:
     target = planar(0.3, 0.4, 0.5)
     hands, robots = run(op, shifted, 30.0)
     assert op.done.all() and not op.gave_up.any()
-    assert np.all(error_m(robots[-1], target) <= 0.01 + 1e-9)
+    err = error_m(robots[-1], target)
+    assert np.all(err <= 0.01 + 0.012) and np.median(err) <= 0.01
     hand_err = error_m(hands[-1], target)
-    assert np.all(np.abs(hand_err - 0.03) < 0.012)
+    assert np.median(np.abs(hand_err - 0.03)) < 0.012
 
 
 def test_pushes_harder_when_resisted_then_pauses_and_gives_up() -> None:
@@ -200,3 +216,79 @@ def test_validation() -> None:
         OperatorProfile(patience_s=0.0)
     with pytest.raises(ValueError, match="share"):
         OperatorProfile().for_robot(0.25, 1.0, 4.0, share=1.5)
+
+
+# --- the world's impairments (docs/operator.md), one mechanism each ---------------------------
+
+
+def test_one_camera_view_misjudges_depth_more_than_lateral_position() -> None:
+    """Through one camera looking along x, the robot's position is misjudged along x (depth)
+    several times more than across it: over 300 people steering a robot that follows the
+    hand, the robots' final errors along x spread ~5x wider than along y."""
+    world = Impairments(depth_sigma_m=0.015, lateral_sigma_m=0.003, delay_s=0.0)
+    n = 300
+    op = operators(n, seed=11, world=world, target=planar(0.3, 0.4, 0.0))
+    _, robots = run(op, follows, 30.0)
+    assert op.committed.mean() >= 0.95
+    err = robots[-1].position[op.committed, :2] - np.array([0.3, 0.4])
+    sd_x, sd_y = err.std(axis=0)
+    assert 0.010 < sd_x < 0.020 and sd_y < 0.006 and sd_x > 3 * sd_y
+    # The misjudgement itself: sd depth_sigma along the view, lateral_sigma across.
+    m = op.misjudged
+    assert m[:, 0].std() == pytest.approx(0.015, rel=0.15)
+    assert m[:, 1].std() == pytest.approx(0.003, rel=0.15)
+    # Turned to look along y, the same people misjudge y instead.
+    turned = operators(n, seed=11, world=world.replace(view_axis=(0.0, 1.0, 0.0)))
+    assert turned.misjudged[:, 1].std() > 3 * turned.misjudged[:, 0].std()
+
+
+def test_the_link_delays_what_the_operator_sees() -> None:
+    """The image path: the person sees the robot `delay_s` later, so the same people (same
+    seeds) make their first move `delay_s` later, and dwell 2 delay_s longer between
+    submovements (they wait the round trip for each movement's effect)."""
+    n, delay = 20, 0.4
+
+    def first_moves(world: Impairments) -> NDArray[np.float64]:
+        hands, _ = run(operators(n, seed=1, world=world), follows, 2.0)
+        return np.array(
+            [next(k for k, H in enumerate(hands) if np.any(H.position[r] != 0.0)) for r in range(n)]
+        )
+
+    shift = (first_moves(CLEAR.replace(delay_s=delay)) - first_moves(CLEAR)) * DT
+    np.testing.assert_allclose(shift, delay, atol=1.01 * DT)
+
+
+def test_the_command_delay_line() -> None:
+    """The command path: the robot receives the hand `ticks` ticks late (the start before)."""
+    start = stack([planar(0.0, 0.0, 0.0)] * 2)
+    line = CommandDelay(start, 3)
+    got = [line.push(stack([planar(0.01 * k, 0.0, 0.0)] * 2)).position[0, 0] for k in range(1, 7)]
+    np.testing.assert_allclose(got, [0.0, 0.0, 0.0, 0.01, 0.02, 0.03])
+    line.select(np.array([False, True]))
+    assert line.push(stack([planar(1.0, 0.0, 0.0)])).position.shape == (1, 3)
+    assert CommandDelay(start, 0).push(start) is start
+
+
+def test_a_resisted_preference_settles_for_the_task() -> None:
+    """A robot that follows the hand's position but never turns: people who want a heading
+    0.5 rad off give up when they never settle; with the task's goal and tolerance to settle
+    for (heading 0 within 0.35 rad), they settle after the resistance and commit."""
+    n = 20
+    target = planar(0.3, 0.4, 0.5)
+
+    def no_turn(H: HandState, X: HandState) -> HandState:
+        return HandState(H.position, X.rotation, H.openness)
+
+    plain = operators(n, seed=8, target=target, patience_s=20.0)
+    run(plain, no_turn, 25.0)
+    assert plain.gave_up.all() and not plain.settled.any()
+    it = one_stage(target, n)
+    settle = Intention(
+        it.targets, it.tolerance, it.mask, it.n_stages, it.turn_within_m,
+        one_stage(planar(0.3, 0.4, 0.0), n).targets, np.tile([0.03, 0.35, 1.0], (n, 1, 1)),
+    )  # fmt: skip
+    settling = operators(n, seed=8, intention=settle, patience_s=20.0)
+    _, robots = run(settling, no_turn, 25.0)
+    assert settling.settled.all() and settling.committed.mean() >= 0.95
+    err = error_m(robots[-1], target)[settling.committed]  # as seen: within 3 cm
+    assert np.all(err <= 0.03 + 0.012) and np.median(err) <= 0.02

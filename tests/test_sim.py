@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import subprocess
@@ -10,11 +11,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from numpy.typing import NDArray
 
 from dsteleop.app.cli.main import main
+from dsteleop.app.operator.world import Impairments
 from dsteleop.app.session.trace import Trace
 from dsteleop.app.study import core as sc
-from dsteleop.arbitration import Mode
+from dsteleop.arbitration import ArbitrationInput, HandState, Mode, make_arbiter
 
 
 def run_cli(*args: str) -> int:
@@ -77,24 +80,40 @@ def test_success_and_time_of_open_loop_trials() -> None:
         )
 
 
+CLEAR = Impairments.unimpaired()
+
+
 def test_closed_loop_trials_end_when_the_operator_is_done() -> None:
-    """The closed-loop operator decides when a trial ends: satisfied (manual: the robot is
-    the hand, so it always gets there, and it holds still at its own target within its
-    tolerance), or out of patience (autonomous ignores it). The robot stays in its plane."""
-    cfg = sc.SimConfig(trajectories=12, seed=5, modes=(Mode.MANUAL, Mode.AUTONOMOUS))
+    """The closed-loop operator decides when a trial ends: it commits (manual: the robot is
+    the hand, so it gets there and holds still at its own target within its tolerance, as it
+    sees it), or gives up at its patience (autonomous with a goal 6 cm off: the robot cannot
+    be moved and is outside even the task's tolerance it settles for). The robot stays in its
+    plane."""
+    cfg = sc.SimConfig(trajectories=12, seed=5, modes=(Mode.MANUAL,), world=CLEAR, attempts=1)
     res = sc.merge(cfg, [sc.run_chunk(cfg, range(12))])
-    man, auto = res.modes["manual"], res.modes["autonomous"]
-    assert not man.gave_up.any() and man.success.mean() >= 11 / 12
+    man = res.modes["manual"]
+    assert man.committed.all() and not man.gave_up.any() and man.success.mean() >= 11 / 12
     np.testing.assert_allclose(man.cosine_mean, 0.0, atol=1e-12)
     goals = np.stack([sc.sample_closed_trial(cfg, i).operator_goal for i in range(12)])
     err = np.linalg.norm(man.final[:, :2] - goals[:, :2], axis=1)
-    assert np.all(err <= cfg.operator_tolerance_m + 1e-9)
+    # Within its tolerance as it sees it (it misjudges the robot by a few mm).
+    assert np.all(err <= cfg.operator_tolerance_m + 0.012)
     assert np.all(np.abs(sc.wrap(man.final[:, 2] - goals[:, 2])) <= cfg.operator_tolerance_rad)
     patience = cfg.operator_profile.patience_s
-    assert auto.gave_up.all()
-    np.testing.assert_allclose(auto.time_s, patience, atol=2 * cfg.dt_s)
     assert np.all(man.time_s < patience)
     np.testing.assert_allclose(man.time_s, (man.lengths - 1) * cfg.dt_s)
+    far = dataclasses.replace(
+        cfg, modes=(Mode.AUTONOMOUS,), world=CLEAR.replace(goal_sigma_m=0.06), trajectories=6
+    )
+    res = sc.merge(far, [sc.run_chunk(far, range(6))])
+    auto = res.modes["autonomous"]
+    off = np.array(
+        [np.linalg.norm(sc.robot_goal(far, i, 0)[:2] - far.handle_xy_m) > 0.045 for i in range(6)]
+    )
+    assert off.sum() >= 2
+    assert auto.gave_up[off].all() and not auto.success[off].any()
+    np.testing.assert_allclose(auto.time_s[off], patience, atol=2 * cfg.dt_s)
+    cfg = dataclasses.replace(cfg, modes=(Mode.MANUAL, Mode.AUTONOMOUS))
     # One trajectory alone: z, roll and pitch never move (the task is planar).
     ex = sc.example(cfg, 3, Mode.MANUAL)
     X = ex.trace.step.X_next
@@ -126,15 +145,16 @@ def test_trace_of_one_trajectory_is_a_session_trace_matching_the_batch(operator:
     # the same person alone and in the batch (its draws come from its own generator).
     cfg = sc.SimConfig(trajectories=4, seed=3, modes=(Mode.S, Mode.DS), operator=operator)  # type: ignore[arg-type]
     res = sc.merge(cfg, [sc.run_chunk(cfg, range(4))])
+    row = 2 * cfg.runs  # trajectory 2's first run
     for mode in cfg.modes:
         tr = sc.trace(cfg, 2, mode)
         assert isinstance(tr, Trace) and tr.mode is mode
-        L = int(res.modes[mode.value].lengths[2])
+        L = int(res.modes[mode.value].lengths[row])
         assert len(tr) == L - 1 and tr.arbitrated.all()
         assert tr.dims == ("x", "y", "z", "roll", "pitch", "yaw")
         assert tr.step.alpha.shape == (L - 1, 6) and tr.step.X_next.position.shape == (L - 1, 3)
         np.testing.assert_allclose(tr.t_s, np.arange(1, L) * cfg.dt_s)
-        final = res.modes[mode.value].final[2]
+        final = res.modes[mode.value].final[row]
         np.testing.assert_allclose(tr.p_robot[-1, :2], final[:2], atol=1e-9)
         heading = sc.heading_of(tr.step.X_next.rotation[-1])
         assert float(sc.wrap(np.array(heading - final[2]))) == pytest.approx(0.0, abs=1e-9)
@@ -143,7 +163,7 @@ def test_trace_of_one_trajectory_is_a_session_trace_matching_the_batch(operator:
         agree = np.einsum("td,td->t", U_h, U_o) > 0
         moving = np.linalg.norm(U_h, axis=-1) > 1e-9
         ratio = agree[moving].sum() / moving.sum()
-        assert ratio == pytest.approx(res.modes[mode.value].agreement[2], abs=1e-9)
+        assert ratio == pytest.approx(res.modes[mode.value].agreement[row], abs=1e-9)
 
 
 def test_trials_are_paired_and_seeded() -> None:
@@ -254,16 +274,17 @@ def test_s_forces_x_while_the_operator_moves_along_y_only() -> None:
 
 
 def test_under_ds_the_operator_corrects_the_robots_goal_error() -> None:
-    """The closed-loop operator watches the robot and steers it to the TRUE handle; the
-    robot aims at a goal 2 cm (sd per axis) off. Under S the robot parks at its own goal
-    (alpha -> 1 near it), so the operator cannot correct it and succeeds only where the
-    goal noise is inside the success radius; under DS the operator moves the robot towards
-    the handle: it ends nearer the handle than S on most trajectories, and succeeds more."""
+    """The goal-noise mechanism alone (no delay, no single view): the closed-loop operator
+    watches the robot and steers it to the TRUE handle; the robot aims at a goal 2 cm (sd
+    per axis) off. Under S the robot parks at its own goal (alpha -> 1 near it), so the
+    operator cannot correct it; under DS the operator moves the robot towards the handle: it
+    ends nearer the handle than S on most trajectories whose goal is off, and succeeds more."""
     n = 80
-    cfg = sc.SimConfig(trajectories=n, seed=21, modes=(Mode.S, Mode.DS))
+    world = CLEAR.replace(goal_sigma_m=0.02)
+    cfg = sc.SimConfig(trajectories=n, seed=21, modes=(Mode.S, Mode.DS), world=world, attempts=1)
     res = sc.merge(cfg, [sc.run_chunk(cfg, range(n))])
     S, DS = res.modes["S"], res.modes["DS"]
-    goals = np.stack([sc.sample_closed_trial(cfg, i).robot_goal for i in range(n)])
+    goals = np.stack([sc.robot_goal(cfg, i, 0) for i in range(n)])
     handle = np.asarray(cfg.handle_xy_m)
     d_S = np.linalg.norm(S.final[:, :2] - handle, axis=1)
     d_DS = np.linalg.norm(DS.final[:, :2] - handle, axis=1)
@@ -273,8 +294,103 @@ def test_under_ds_the_operator_corrects_the_robots_goal_error() -> None:
     off = np.linalg.norm(goals[:, :2] - handle, axis=1) > cfg.success_radius_m
     assert off.sum() >= 15
     assert np.mean(d_DS[off] < d_S[off]) >= 0.8
-    assert np.median(d_DS[off]) < 0.6 * np.median(d_S[off])
+    # (It corrects until the robot is within the task's radius as it sees it: having felt
+    # the robot resist, it settles for the task's tolerance.)
+    assert np.median(d_DS[off]) < np.median(d_S[off])
     assert DS.success.mean() >= S.success.mean() + 0.1
+
+
+# --- the operator's world (docs/operator.md): no built-in impossibility, settled outcomes,
+# the delay on both paths, runs with a history -----------------------------------------------
+
+
+def test_every_mode_satisfies_the_operator_without_noise_or_delay() -> None:
+    """No built-in impossibility: in a world without goal noise, delay or single-view depth
+    error, the operator commits (and succeeds) in every mode, S and autonomous included (it
+    settles for the task's tolerance where the robot resists its own heading)."""
+    n = 100
+    cfg = sc.SimConfig(trajectories=n, seed=3, world=CLEAR, attempts=1)
+    res = sc.merge(cfg, [sc.run_chunk(cfg, range(n))])
+    for name, r in res.modes.items():
+        assert r.committed.mean() >= 0.95, name
+        assert r.success.mean() >= 0.95, name
+        assert not r.success[~r.committed].any()
+
+
+def test_success_is_judged_on_the_committed_settled_pose() -> None:
+    """Success is the robot's pose after the grasp settled, not a snapshot when the operator
+    commits: the same people (paired rows) judged at the commit (no grasp time) and after a
+    3 s grasp, under DS with a goal 4 cm off (the robot, left alone once the hand stops,
+    drifts towards its noisy goal): some snapshot successes fail when judged settled; a
+    trial that ends by giving up never succeeds."""
+    world = CLEAR.replace(goal_sigma_m=0.04)
+    base = sc.SimConfig(trajectories=60, seed=4, modes=(Mode.DS,), world=world, attempts=1)
+    snap = dataclasses.replace(base, grasp_s=0.0)
+    settled = dataclasses.replace(base, grasp_s=3.0)
+    a = sc.merge(snap, [sc.run_chunk(snap, range(60))]).modes["DS"]
+    b = sc.merge(settled, [sc.run_chunk(settled, range(60))]).modes["DS"]
+    np.testing.assert_array_equal(a.committed, b.committed)  # the same people, the same commits
+    np.testing.assert_allclose(b.time_s[b.committed] - a.time_s[a.committed], 3.0, atol=0.05)
+    assert np.sum(a.success & ~b.success) >= 3
+    assert not a.success[a.gave_up].any() and not b.success[b.gave_up].any()
+
+
+def test_the_delay_reaches_both_paths() -> None:
+    """The same person (same seed) in manual mode: with a link delay the robot's first
+    motion comes 2 delay_s later (the person sees the robot delay_s late, and its command
+    reaches the robot delay_s late)."""
+
+    def first_motion(delay: float) -> float:
+        cfg = sc.SimConfig(
+            trajectories=1, seed=6, modes=(Mode.MANUAL,), world=CLEAR.replace(delay_s=delay)
+        )
+        tr = sc.trace(cfg, 0, Mode.MANUAL)
+        moving = np.linalg.norm(tr.step.U_out, axis=-1) > 1e-9
+        return float(tr.t_s[np.argmax(moving)])
+
+    assert first_motion(0.3) - first_motion(0.0) == pytest.approx(0.6, abs=0.04)
+
+
+def test_runs_feed_the_history_term_from_the_second_run() -> None:
+    """Each person makes `attempts` runs in each mode; eq (6)'s history term of a run is the
+    mean direction of its previous runs: zero in the first, non-zero from the second."""
+    cfg = sc.SimConfig(trajectories=8, seed=2, modes=(Mode.S, Mode.DS), attempts=3)
+    res = sc.merge(cfg, [sc.run_chunk(cfg, range(8))])
+    for r in res.modes.values():
+        assert r.success.size == 24
+        np.testing.assert_array_equal(r.attempt, np.tile([0, 1, 2], 8))
+        assert np.all(r.history_norm[r.attempt == 0] == 0.0)
+        assert np.all(r.history_norm[r.attempt > 0] > 0.5)
+    s = sc.summarise(res)
+    assert s["runs"] == 3 and len(s["modes"]["DS"]["runs"]) == 3
+    assert s["modes"]["DS"]["runs"][0]["history_term_l1"] == 0.0
+
+
+def test_a_history_term_per_row_is_each_rows_own() -> None:
+    """The arbitration takes one history term per row of a batch (each row its operator):
+    a batch of two rows with different terms steps as each row alone with its own."""
+    rng = np.random.default_rng(0)
+
+    def state() -> HandState:
+        return sc.planar_state(rng.uniform(0, 0.3, 2), rng.uniform(0, 0.4, 2), rng.uniform(0, 1, 2))
+
+    H, Hp, Hs, X, Xp, Xs, G = (state() for _ in range(7))
+    h = np.array([[0.5, -0.5, 0, 0, 0, 1.0], [-0.7, 0.7, 0, 0, 0, -1.0]])
+    arb = make_arbiter(Mode.DS)
+
+    def step(rows: list[int], hist: NDArray[np.float64]) -> NDArray[np.float64]:
+        sel = np.array(rows)
+        inp = ArbitrationInput(
+            X_human=H.take(sel), X_human_prev=Hp.take(sel), X_human_start=Hs.take(sel),
+            X_current=X.take(sel), X_prev=Xp.take(sel), X_start=Xs.take(sel),
+            X_goal=G.take(sel), dt=1 / 30, history_term=hist,
+        )  # fmt: skip
+        return arb.step(arb.initial_state(6, batch=(len(rows),)), inp)[1].psi_human
+
+    both = step([0, 1], h)
+    np.testing.assert_allclose(both[0], step([0], h[0])[0], atol=1e-12)
+    np.testing.assert_allclose(both[1], step([1], h[1])[0], atol=1e-12)
+    assert not np.allclose(both[0], step([0], h[1])[0])
 
 
 # --- bad arguments --------------------------------------------------------------------------
@@ -291,7 +407,10 @@ def test_under_ds_the_operator_corrects_the_robots_goal_error() -> None:
         (["--example", "50"], "example must be in [0, 9]"),
         (["--param", "kappa=-1"], "kappa must be finite and > 0"),
         (["--param", "nonsense=1"], "unknown arbitration parameter"),
-        (["--goal-sigma", "-0.1"], "goal_sigma_m must be finite and >= 0"),
+        (["--goal-sigma", "-0.1"], "goal_sigma_m must be a number >= 0"),
+        (["--delay", "-1"], "delay_s must be a number >= 0"),
+        (["--depth-sigma", "nan"], "depth_sigma_m must be a number >= 0"),
+        (["--attempts", "0"], "attempts must be >= 1"),
     ],
 )
 def test_bad_arguments_exit_2_with_one_line(

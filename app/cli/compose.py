@@ -17,6 +17,7 @@ built loop afterwards.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass
@@ -107,10 +108,22 @@ def build(
     """
     spec = resolve_source(options.source)
     mapping = mapping or MappingConfig()
+    # The demo person works in the operator's world (docs/operator.md): the task's goal noise
+    # and the link's command delay come from it, unless given on the command line.
+    demo_config = DemoConfig(seed=options.seed)
+    goal_noise_m = options.goal_noise_m
+    if spec.kind == "demo":
+        world = demo_config.world
+        if goal_noise_m is None:
+            goal_noise_m = world.goal_sigma_m
+        if options.loop.input_delay_s == 0.0:
+            options = dataclasses.replace(
+                options, loop=dataclasses.replace(options.loop, input_delay_s=world.delay_s)
+            )
     plant = KitchenPlant(
         options.utensil,
         options.seed,
-        options.goal_noise_m,
+        goal_noise_m,
         export_scene=export_scene or options.rerun is not None,
         time_limit_s=options.time_limit_s,
     )
@@ -124,7 +137,7 @@ def build(
             demo = DemoOperator(
                 plant.true_goals,
                 start,
-                DemoConfig(seed=options.seed),
+                demo_config,
                 arbitration=options.loop.arbitration,
             )
             source: FrameSource = demo_source(

@@ -97,7 +97,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
         default=None,
         metavar="M",
-        help="robot goal position noise per axis [m] (default 0.02)",
+        help="robot goal position noise per axis [m] (default 0.02; docs/operator.md)",
+    )
+    parser.add_argument(
+        "--delay",
+        type=float,
+        default=None,
+        metavar="S",
+        help="teleoperation delay each way [s] (default 0.2; docs/operator.md)",
+    )
+    parser.add_argument(
+        "--depth-sigma",
+        type=float,
+        default=None,
+        metavar="M",
+        help="the operator's misjudgement of the robot's depth in its one camera view [m] "
+        "(default 0.015; docs/operator.md)",
+    )
+    parser.add_argument(
+        "--attempts",
+        type=int,
+        default=None,
+        metavar="N",
+        help="runs per simulated person and mode (default 3, the paper's three runs)",
     )
     parser.add_argument(
         "--success-radius",
@@ -130,6 +152,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def command(args: argparse.Namespace) -> SimCommand:
     """The command's settings; bad values raise ConfigError with one line."""
+    from dsteleop.app.operator.world import Impairments
     from dsteleop.app.study.core import SimConfig, all_modes
     from dsteleop.app.study.run import workers_for
 
@@ -144,8 +167,20 @@ def command(args: argparse.Namespace) -> SimCommand:
             f"unknown operator {args.operator!r} (choose from {', '.join(OPERATORS)})"
         )
     extra: dict[str, Any] = {}
+    world: dict[str, float] = {}
     for arg, name in (
         ("goal_sigma", "goal_sigma_m"),
+        ("delay", "delay_s"),
+        ("depth_sigma", "depth_sigma_m"),
+    ):
+        v = getattr(args, arg)
+        if v is not None:
+            world[name] = float(v)
+    if world:
+        extra["world"] = Impairments().replace(**world)
+    if args.attempts is not None:
+        extra["attempts"] = args.attempts
+    for arg, name in (
         ("success_radius", "success_radius_m"),
         ("success_heading", "success_heading_rad"),
     ):
@@ -197,7 +232,7 @@ def run(args: argparse.Namespace) -> int:
         # Needs only the configuration: drawn while the workers simulate.
         files.extend(figures.write_example_figures(fig_cfg, example, out))
 
-    total = sum(c.trajectories * len(c.modes) for c in studies)
+    total = sum(c.trajectories * len(c.modes) * c.runs for c in studies)
     with Progress(total, sys.stderr, show, "sim", "trajectory-modes") as bar:
         results = simulate_all(studies, cmd.workers, bar, example_figures if cmd.figures else None)
     result, fig_result = results[0], results[-1]

@@ -34,6 +34,12 @@ pushed or twisted it in its holder).
 When the task resets (`X_reset` in a record: after an outcome, or a reset from the page) it
 starts over from the robot's new pose with a fresh plan.
 
+The person works in the operator's world (`DemoConfig.world`, `Impairments`, docs/operator.md):
+it perceives the robot through the demo's one virtual camera (its viewing axis is the base's
+x axis: depth misjudged more than lateral position) and through the link's image delay; the
+command delay is the loop's `input_delay_s` and the goal noise the task's (both set from the
+same world by `app/cli/compose.py`), so each impairment is one mechanism.
+
 The hand reaches the tracking pipeline as landmarks of the kinematic hand model
 (`tracking.synthetic.SyntheticSource`) in a virtual camera: the operator's robot-frame pose is
 converted to the camera frame through a fixed `WorkspaceMapping` anchored where the demo's
@@ -44,12 +50,13 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 
 from dsteleop.app.operator.closed_loop import ClosedLoopOperator, Intention, OperatorProfile
+from dsteleop.app.operator.world import Impairments
 from dsteleop.app.session.schema import TickRecord
 from dsteleop.arbitration import ArbitrationConfig, HandState
 from dsteleop.arbitration.se3 import stack as stack_states
@@ -99,6 +106,8 @@ class DemoConfig:
             and U_human saturates at the limits, so a hand moving at the limits would lose
             motion: 0.6 leaves that headroom.
         fps: camera frame rate [Hz].
+        world: the impairments the demo runs under (docs/operator.md): by default the
+            study's, from the literature; `describe()` says which, in one line.
     """
 
     seed: int = 0
@@ -114,6 +123,11 @@ class DemoConfig:
     retry_after_s: float = 2.0
     speed_share: float = 0.6
     fps: float = 30.0
+    world: Impairments = field(default_factory=Impairments)
+
+    def describe(self) -> str:
+        """The demo's world in one line (for the page's status)."""
+        return f"demo world: {self.world.describe()}"
 
 
 def demo_intention(
@@ -197,7 +211,9 @@ class DemoOperator:
         intention = self._intention(first)
         rng = np.random.default_rng([self.config.seed, self._episode, self._attempt])
         self._first, self._done_since = first, None
-        return ClosedLoopOperator(intention, _one(hand), self.profile, [rng], t0_s)
+        return ClosedLoopOperator(
+            intention, _one(hand), self.profile, [rng], t0_s, world=self.config.world
+        )
 
     @property
     def stage(self) -> str:

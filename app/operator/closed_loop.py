@@ -10,8 +10,13 @@ state) with a tolerance; the last stage's tolerance is the operator's own satisf
 moves its hand with the rate mapping of the loop (the robot moves as the hand moves, less
 what the arbitration takes), in discrete submovements:
 
-    perceive   the robot's pose as it was `delay` ago (visual feedback delay, 0.15-0.3 s),
-               with Gaussian noise (a few mm, a degree or two)
+    perceive   the robot's pose as it was `delay + world.delay_s` ago (its own visual
+               feedback delay, 0.15-0.3 s, plus the teleoperation link's image delay), with
+               errors: in position a misjudgement drawn once per person (a still scene looks
+               the same at every look), anisotropic through the one camera:
+               `world.depth_sigma_m` along its viewing axis, `world.lateral_sigma_m` across
+               it, plus a reading noise of `world.lateral_sigma_m` per axis at each look; a
+               degree or two in orientation at each look
     plan       at the end of a dwell: the error e = diff(stage target, perceived robot);
                the next submovement moves the hand by gain * e (the orientation part only
                once the position is within `turn_within_m` of the stage target: the heading
@@ -21,7 +26,8 @@ what the arbitration takes), in discrete submovements:
     move       a minimum-jerk profile from the hand's pose to its submovement target,
                ballistic: the hand does not react during a submovement
     dwell      after each submovement: the perception delay plus a decision time, before
-               the next plan (intermittent control)
+               the next plan (intermittent control); through a delayed link it also waits
+               the round trip 2 world.delay_s for the movement's effect (move and wait)
     resist     if the robot moved less than half of what the last submovement asked (as
                perceived, in a group where what was asked exceeds three times the
                perception noise: a smaller lag cannot be seen), the operator pushes harder:
@@ -29,8 +35,12 @@ what the arbitration takes), in discrete submovements:
                row it pauses (0.5-1.5 s), then retries at gain 1
     clutch     a finger already fully open cannot open the robot's further (the rate
                mapping): the person closes it fully, then opens it again
+    settle     a person whose own preference the robot resists settles for the task: at
+               its first resistance pause, a row whose intention has `settle_targets`
+               replaces its targets and tolerances by those (the task's goal and success
+               tolerance) for the rest of the trial
     satisfied  within the final stage's tolerance, it holds still; satisfied for `hold_s`
-               in a row, it is done
+               in a row, it commits (grasps: `committed`) and is done
     patience   after `patience_s` without being done, it gives up and holds still (at
                once, even mid-movement)
 
@@ -46,6 +56,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from dsteleop.app.operator.world import Impairments
 from dsteleop.arbitration.se3 import FING, ROT, TRANS, HandState, diff, so3_exp
 
 Array = NDArray[np.float64]
@@ -59,7 +70,6 @@ class OperatorProfile:
     Attributes:
         delay_s: visual feedback delay [s].
         decision_s: decision time added to the delay in every dwell [s].
-        position_noise_m: sd of the perceived robot position, per axis [m].
         angle_noise_rad: sd of the perceived robot orientation, per axis [rad].
         openness_noise: sd of the perceived finger openness.
         fitts_a_s, fitts_b_s: Fitts' law of a submovement, T = a + b log2(1 + A / W) [s].
@@ -81,7 +91,6 @@ class OperatorProfile:
 
     delay_s: Interval = (0.15, 0.30)
     decision_s: Interval = (0.10, 0.25)
-    position_noise_m: float = 0.002
     angle_noise_rad: float = 0.02
     openness_noise: float = 0.02
     fitts_a_s: float = 0.25
@@ -106,7 +115,7 @@ class OperatorProfile:
             if not (math.isfinite(lo) and math.isfinite(hi) and 0 <= lo <= hi):
                 raise ValueError(f"{name} must be an interval 0 <= lo <= hi, got {(lo, hi)!r}")
         for name in (
-            "position_noise_m", "angle_noise_rad", "openness_noise", "fitts_a_s", "fitts_b_s",
+            "angle_noise_rad", "openness_noise", "fitts_a_s", "fitts_b_s",
             "min_move_s", "endpoint_noise", "hold_s",
         ):  # fmt: skip
             v = getattr(self, name)
@@ -145,6 +154,9 @@ class Intention:
         n_stages: (N,) stages each row uses (its last is its final one).
         turn_within_m: (N,) the orientation part of a submovement is planned only within
             this distance of the stage's target position [m].
+        settle_targets: what a row settles for after resistance (N, S), or None (it never
+            settles): the task's own goals, where `targets` hold the person's preference.
+        settle_tolerance: (N, S, 3) the tolerances it then accepts (the task's).
     """
 
     targets: HandState
@@ -152,12 +164,35 @@ class Intention:
     mask: Array
     n_stages: NDArray[np.int64]
     turn_within_m: Array
+    settle_targets: HandState | None = None
+    settle_tolerance: Array | None = None
+
+    def __post_init__(self) -> None:
+        if (self.settle_targets is None) != (self.settle_tolerance is None):
+            raise ValueError("settle_targets and settle_tolerance go together")
 
     def take(self, keep: NDArray[np.bool_]) -> Intention:
+        st, tol = self.settle_targets, self.settle_tolerance
         return Intention(
             self.targets.take(keep), self.tolerance[keep], self.mask[keep], self.n_stages[keep],
-            self.turn_within_m[keep],
+            self.turn_within_m[keep], None if st is None else st.take(keep),
+            None if tol is None else tol[keep],
         )  # fmt: skip
+
+    def of_rows(self, idx: NDArray[np.intp], settled: NDArray[np.bool_]) -> tuple[HandState, Array]:
+        """Rows idx's targets (n, S) and tolerances (n, S, 3): the settle ones where
+        `settled` (n,)."""
+        target, tol = self.targets.take(idx), self.tolerance[idx]
+        if self.settle_targets is None or self.settle_tolerance is None or not settled.any():
+            return target, tol
+        alt = self.settle_targets.take(idx)
+        s = settled[:, None]
+        target = HandState(
+            np.where(s[..., None], alt.position, target.position),
+            np.where(s[..., None, None], alt.rotation, target.rotation),
+            np.where(s[..., None], alt.openness, target.openness),
+        )
+        return target, np.where(s[..., None], self.settle_tolerance[idx], tol)
 
 
 @dataclass
@@ -180,6 +215,7 @@ class _Rows:
     satisfied_since: Array
     done: NDArray[np.bool_]
     gave_up: NDArray[np.bool_]
+    settled: NDArray[np.bool_]
     t_done: Array
     delay: Array
     decision: Array
@@ -197,6 +233,9 @@ class ClosedLoopOperator:
         profile: the person.
         rngs: one generator per operator row (seeded by the caller).
         t0_s: the start time [s].
+        world: the impairments it works under (`Impairments`: the image delay and the single
+            view's perception noise are the operator's; the command delay and the goal noise
+            are the caller's to apply).
     """
 
     intention: Intention
@@ -204,9 +243,12 @@ class ClosedLoopOperator:
     profile: OperatorProfile
     rngs: list[np.random.Generator]
     t0_s: float = 0.0
+    world: Impairments = field(default_factory=Impairments)
     _rows: _Rows = field(init=False)
     _seen: _Seen = field(init=False)
     _draws: _Draws = field(init=False)
+    _view: Array = field(init=False)  # the camera's unit viewing axis, base frame
+    _misjudged: Array = field(init=False)  # (N, 3) each person's position misjudgement [m]
 
     def __post_init__(self) -> None:
         N = self.start.position.shape[0]
@@ -215,8 +257,14 @@ class ClosedLoopOperator:
         pr = self.profile
         delay = np.array([_pick(pr.delay_s, g) for g in self.rngs])
         decision = np.array([_pick(pr.decision_s, g) for g in self.rngs])
+        misjudged = np.stack([g.standard_normal(3) for g in self.rngs]) if N else np.zeros((0, 3))
         D = 6 + self.start.n_fingers
-        self._seen = _Seen.empty(self.start)
+        # Enough observations for the longest delay at up to 60 Hz, and a margin.
+        look_back_s = pr.delay_s[1] + self.world.delay_s
+        self._seen = _Seen.empty(self.start, capacity=96 + math.ceil(60.0 * look_back_s))
+        axis = np.asarray(self.world.view_axis, dtype=np.float64)
+        self._view = axis / np.linalg.norm(axis)
+        self._misjudged = self._position_noise(misjudged)
         self._draws = _Draws(self.rngs, 2 * D + 1)  # perception, endpoint, pause
         self._rows = _Rows(
             hand=self.start,
@@ -225,7 +273,8 @@ class ClosedLoopOperator:
             sub_t0=np.full(N, self.t0_s),
             sub_T=np.ones(N),
             moving=np.zeros(N, dtype=bool),
-            dwell_until=self.t0_s + delay + decision,  # a reaction time before the first move
+            # A reaction time before the first move (it sees the robot through the link).
+            dwell_until=self.t0_s + delay + self.world.delay_s + decision,
             stage=np.zeros(N, dtype=np.int64),
             gain=np.ones(N),
             resisted=np.zeros(N, dtype=np.int64),
@@ -235,6 +284,7 @@ class ClosedLoopOperator:
             satisfied_since=np.full(N, np.nan),
             done=np.zeros(N, dtype=bool),
             gave_up=np.zeros(N, dtype=bool),
+            settled=np.zeros(N, dtype=bool),
             t_done=np.full(N, np.nan),
             delay=delay,
             decision=decision,
@@ -251,6 +301,16 @@ class ClosedLoopOperator:
     @property
     def gave_up(self) -> NDArray[np.bool_]:
         return self._rows.gave_up
+
+    @property
+    def committed(self) -> NDArray[np.bool_]:
+        """(N,) done by committing (satisfied and held: the grasp), not by giving up."""
+        return self._rows.done & ~self._rows.gave_up
+
+    @property
+    def settled(self) -> NDArray[np.bool_]:
+        """(N,) settled for the task's goal and tolerance after resistance."""
+        return self._rows.settled
 
     @property
     def t_done(self) -> Array:
@@ -294,6 +354,7 @@ class ClosedLoopOperator:
         for name, value in list(vars(r).items()):
             setattr(r, name, value.take(keep) if isinstance(value, HandState) else value[keep])
         self.intention = self.intention.take(keep)
+        self._misjudged = self._misjudged[keep]
         self.rngs = [g for g, k in zip(self.rngs, keep) if k]
         self._seen.select(keep)
         self._draws.select(keep, self.rngs)
@@ -317,23 +378,44 @@ class ClosedLoopOperator:
         ended = m[u >= 1.0]
         if ended.size:
             r.moving[ended] = False
-            r.dwell_until[ended] = t_s + r.delay[ended] + r.decision[ended]
+            r.dwell_until[ended] = t_s + self._wait_s(ended)
+
+    def _wait_s(self, idx: NDArray[np.intp]) -> Array:
+        """The dwell after a submovement [s]: its own delay and decision, and the link's
+        round trip (move and wait: Ferrell 1965)."""
+        r = self._rows
+        return r.delay[idx] + r.decision[idx] + 2.0 * self.world.delay_s
+
+    @property
+    def misjudged(self) -> Array:
+        """(N, 3) each person's persistent misjudgement of the robot's position [m]."""
+        return self._misjudged
+
+    def _position_noise(self, z: Array) -> Array:
+        """Position misjudgements from standard normal draws z (n, 3): sd `depth_sigma_m`
+        along the view axis, `lateral_sigma_m` across it."""
+        w, a = self.world, self._view
+        along = z @ a
+        return np.asarray(
+            w.lateral_sigma_m * z + (w.depth_sigma_m - w.lateral_sigma_m) * along[:, None] * a
+        )
 
     def _perceived(self, idx: NDArray[np.intp], t_s: float, noise: Array) -> HandState:
-        """What rows `idx` see of the robot now: its state `delay` ago, with noise (the
-        rows' standard normal draws, (len(idx), D))."""
+        """What rows `idx` see of the robot now: its state `delay + world.delay_s` ago, with
+        noise (the rows' standard normal draws, (len(idx), D))."""
         r, pr = self._rows, self.profile
-        pos, rot, opn = self._seen.at(idx, t_s - r.delay[idx])
-        pos = pos + pr.position_noise_m * noise[:, :3]
+        pos, rot, opn = self._seen.at(idx, t_s - r.delay[idx] - self.world.delay_s)
+        pos = pos + self._misjudged[idx] + self.world.lateral_sigma_m * noise[:, :3]
         rot = so3_exp(pr.angle_noise_rad * noise[:, 3:6]) @ rot
         opn = np.clip(opn + pr.openness_noise * noise[:, 6:], 0.0, 1.0)
         return HandState(pos, rot, opn)
 
-    def _stage_errors(self, idx: NDArray[np.intp], seen: HandState) -> tuple[Array, Array]:
-        """Rows idx's errors to every stage of their intention: (norms (n, S, 3): position,
+    def _stage_errors(
+        self, idx: NDArray[np.intp], seen: HandState, target: HandState
+    ) -> tuple[Array, Array]:
+        """Rows idx's errors to every stage `target` (n, S): (norms (n, S, 3): position,
         angle, openness; the masked differences target - seen (n, S, D))."""
         it = self.intention
-        target = it.targets.take(idx)
         now = HandState(seen.position[:, None], seen.rotation[:, None], seen.openness[:, None])
         e = diff(target, now) * it.mask[idx]
         err = np.stack(
@@ -352,8 +434,8 @@ class ClosedLoopOperator:
         draws = self._draws.next(idx)  # one row of draws per plan, whatever it needs
         seen = self._perceived(idx, t_s, draws[:, :D])
         last = it.n_stages[idx] - 1
-        errs, es = self._stage_errors(idx, seen)
-        tols = it.tolerance[idx]
+        targets, tols = it.of_rows(idx, r.settled[idx])
+        errs, es = self._stage_errors(idx, seen, targets)
         within_all = (errs <= tols).all(axis=-1)  # (n, S)
         n = np.arange(idx.size)
         st = r.stage[idx]
@@ -386,8 +468,9 @@ class ClosedLoopOperator:
         was = r.planned[idx]
         asked = r.asked[idx]
         moved = diff(seen, r.seen_at_plan.take(idx))
-        noise = (pr.position_noise_m, pr.angle_noise_rad, pr.openness_noise)
         lagging = np.zeros(idx.size, dtype=bool)
+        # (A persistent misjudgement does not hide motion: the look-to-look noise does.)
+        noise = (self.world.lateral_sigma_m, pr.angle_noise_rad, pr.openness_noise)
         for g, sd in zip((TRANS, ROT, FING), noise, strict=True):
             a, m = asked[:, g], moved[:, g]
             if a.shape[1] == 0:
@@ -411,6 +494,8 @@ class ClosedLoopOperator:
         r.dwell_until[idx[pausing]] = t_s + pause[pausing]
         r.resisted[idx[pausing]] = 0
         r.gain[idx[pausing]] = 1.0
+        if it.settle_targets is not None:  # resisted: it settles for the task
+            r.settled[idx[pausing]] = True
         r.planned[idx] = False
         if not go.any():
             return
@@ -455,7 +540,7 @@ class ClosedLoopOperator:
             -1,
         )
         # Duration: Fitts' law on each group's amplitude over its tolerance, and the caps.
-        tol = np.maximum(it.tolerance[g_idx, r.stage[g_idx]], 1e-6)
+        tol = np.maximum(tol[sel], 1e-6)
         fitts = pr.fitts_a_s + pr.fitts_b_s * np.log2(1.0 + amp / tol)
         caps = 1.875 * amp / np.array([pr.v_cap_mps, pr.w_cap_radps, pr.g_cap_per_s])
         T = np.maximum(np.maximum(fitts.max(axis=1), caps.max(axis=1)), pr.min_move_s)
@@ -528,6 +613,7 @@ class _Seen:
 
     @classmethod
     def empty(cls, like: HandState, capacity: int = 96) -> _Seen:
+        """No observations yet, room for `capacity` (the oldest are overwritten)."""
         N, F = like.position.shape[0], like.n_fingers
         return cls(
             np.full(capacity, -np.inf), np.zeros((capacity, N, 3)),

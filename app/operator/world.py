@@ -4,7 +4,14 @@ The paper's own study names three impairments that make assistance worth having 
 IV-C): noise on the robot's goal, an induced teleoperation delay, and a single camera view in
 which depth is hard to judge. Each is one mechanism with its own parameters here; the study,
 the sweep (`dsteleop sim --sweep`) and the demo person read the same object. docs/operator.md
-gives each parameter's source; they are fixed from the literature, never tuned to a result.
+gives each parameter's source; they are fixed from the literature, never tuned to a result
+(written down on 2026-12-02 before any S vs DS comparison of this world was run).
+
+The camera (`view_axis`): in the planar study and in the demo's kitchen alike, the operator
+sees the robot through one camera whose optical axis lies along the robot base's x axis
+(the demo's virtual camera faces the operator with the mirror mapping, its optical axis
+being base -x; the study's camera stands in front of the planar workspace looking back along
+-x, the paper's single Kinect view of Fig. 7), so depth is base x and the screen shows y, z.
 
     goal noise     the robot's goal = the true goal + N(0, goal_sigma_m^2) per position axis
     delay          the operator's command reaches the robot `delay_s` late, and the robot's
@@ -19,9 +26,14 @@ gives each parameter's source; they are fixed from the literature, never tuned t
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
+
+from dsteleop.arbitration.se3 import HandState
 from dsteleop.errors import ConfigError
 
 
@@ -38,9 +50,9 @@ class Impairments:
     """
 
     goal_sigma_m: float = 0.02
-    delay_s: float = 0.0
-    depth_sigma_m: float = 0.002
-    lateral_sigma_m: float = 0.002
+    delay_s: float = 0.2
+    depth_sigma_m: float = 0.015
+    lateral_sigma_m: float = 0.003
     view_axis: tuple[float, float, float] = (1.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
@@ -55,6 +67,22 @@ class Impairments:
         if len(axis) != 3 or not math.isfinite(n) or abs(n - 1.0) > 1e-6:
             raise ConfigError(f"view_axis must be a unit 3-vector, got {self.view_axis!r}")
 
+    @classmethod
+    def unimpaired(cls) -> Impairments:
+        """A world without the impairments: the robot knows the true goal, no link delay, and
+        the robot seen as precisely along the view as across it (the lateral sd)."""
+        lateral = cls().lateral_sigma_m
+        return cls(goal_sigma_m=0.0, delay_s=0.0, depth_sigma_m=lateral, lateral_sigma_m=lateral)
+
+    def describe(self) -> str:
+        """One line for a status or a log."""
+        a = ", ".join(f"{v:g}" for v in self.view_axis)
+        return (
+            f"goal noise {1000 * self.goal_sigma_m:g} mm, delay {1000 * self.delay_s:g} ms each "
+            f"way, single view along ({a}): depth {1000 * self.depth_sigma_m:g} mm, lateral "
+            f"{1000 * self.lateral_sigma_m:g} mm"
+        )
+
     def replace(self, **changes: Any) -> Impairments:
         return replace(self, **changes)
 
@@ -62,3 +90,30 @@ class Impairments:
         d = asdict(self)
         d["view_axis"] = list(self.view_axis)
         return d
+
+
+class CommandDelay:
+    """The command path of the teleoperation delay: the hands (a batch) as the robot receives
+    them, `ticks` ticks late (the start hand until then).
+
+    Args:
+        start: the hands at the start (batch (N,)).
+        ticks: the delay in ticks, >= 0 (round(delay_s / dt)).
+    """
+
+    def __init__(self, start: HandState, ticks: int) -> None:
+        if ticks < 0:
+            raise ConfigError(f"a delay of {ticks} ticks")
+        self.ticks = ticks
+        self._queue: deque[HandState] = deque([start] * ticks)
+
+    def push(self, hand: HandState) -> HandState:
+        """Send the hands of this tick; the hands the robot receives this tick."""
+        if self.ticks == 0:
+            return hand
+        self._queue.append(hand)
+        return self._queue.popleft()
+
+    def select(self, keep: NDArray[np.bool_]) -> None:
+        """Keep only the rows `keep`."""
+        self._queue = deque(H.take(keep) for H in self._queue)

@@ -6,19 +6,25 @@ hand starts where the robot starts and reaches for an object's handle at `handle
 grasp normal is `handle_normal_rad`. For trajectory n (seeded by (seed, n) alone, so results
 do not depend on batching or workers):
 
-    robot goal       handle position + N(0, goal_sigma_m^2 I_2), heading = normal +
-                     N(0, goal_heading_sigma_rad^2) (the same draws for every operator kind)
+    robot goal       handle position + N(0, world.goal_sigma_m^2 I_2), heading = normal +
+                     N(0, goal_heading_sigma_rad^2) (the same draws for every operator kind;
+                     each run of a closed-loop person its own draws)
     robot            X_{k+1} = integrate(X_k, U_out_k, dt), eq (1)-(2), U_human_k from the
                      hand's motion H_k -> H_{k+1}, under each mode (S, DS, manual,
                      autonomous) with the same operator and goal noise (paired)
 
 Operators:
 
-    closed-loop      (the default) `app.operator.closed_loop`: watches the robot with a
-                     delay and steers it to the TRUE handle, with its own preferred grasp
+    closed-loop      (the default) `app.operator.closed_loop`, in the world `cfg.world`
+                     (docs/operator.md): watches the robot through the link's delay and one
+                     camera, and steers it to the TRUE handle, with its own preferred grasp
                      heading (normal - U(side_offset_rad)), y first with probability 0.8,
-                     the heading turning only near the handle; the trial ends when it is
-                     satisfied and holds, or gives up (patience), or after max_trial_s
+                     the heading turning only near the handle, settling for the task's goal
+                     and tolerance once the robot resists it; the arbitration receives its
+                     hand world.delay_s late. A run ends `world.delay_s + grasp_s` after it
+                     commits (satisfied and held: the grasp has settled), or when it gives up
+                     (patience), or after max_trial_s. Each person makes `attempts` runs per
+                     mode, eq (6)'s history term fed from its previous runs in that mode
     side, aligned    open loop (`app.operator.open_loop`): a sampled trajectory that does not
                      watch the robot, to the handle with heading normal - U(side_offset_rad)
                      (side) or the normal (aligned); the trial lasts as long as it
@@ -26,7 +32,8 @@ Operators:
                      (close to the goal early) and deviating late by U(deviate_rad)
 
 Success: the robot's final pose is within `success_radius_m` of the TRUE handle position
-and within `success_heading_rad` of the normal. Time: the trial's duration for the closed-loop
+and within `success_heading_rad` of the normal (closed loop: the settled pose after a commit;
+a run that ends by giving up fails). Time: the trial's duration for the closed-loop
 operator (it decides when it is done); for an open-loop one, the time from which the robot
 stays in the success region to the end (its settling time), or the whole trial on failure.
 
@@ -55,6 +62,7 @@ from dsteleop.app.operator.open_loop import (
     sample_trajectory,
     stack,
 )
+from dsteleop.app.operator.world import CommandDelay, Impairments
 from dsteleop.app.session.trace import Trace
 from dsteleop.arbitration import (
     STEP_ARRAYS,
@@ -70,6 +78,7 @@ from dsteleop.arbitration import (
     registered,
     so3_exp,
 )
+from dsteleop.arbitration.history import history_terms
 from dsteleop.arbitration.se3 import stack as stack_states
 from dsteleop.errors import ConfigError
 from dsteleop.robot.task import Phase
@@ -132,14 +141,24 @@ class SimConfig:
         handle_normal_rad: heading of the grasp normal [rad].
         success_radius_m: R of the success test [m].
         success_heading_rad: delta of the success test [rad].
-        goal_sigma_m: standard deviation of the robot's goal position per axis [m].
+        world: the impairments (`Impairments`): the robot's goal noise per position axis
+            (every operator kind), and for the closed-loop operator the teleoperation delay
+            (both ways) and the single camera view's perception noise.
         goal_heading_sigma_rad: standard deviation of the robot's goal heading [rad].
         side_offset_rad: interval of the side (and closed-loop) operator's heading offset from
             the normal [rad]: it prefers to grasp the handle a little from the side.
         deviate_rad: interval of the deviate operator's late heading deviation [rad].
         operator_tolerance_m: the closed-loop operator is satisfied within this of its
-            target [m] (half the success radius: a person aims tighter than the task needs).
-        operator_tolerance_rad: ... and within this of its own heading [rad].
+            target [m] (half the success radius R: a person aims tighter than the task needs).
+        operator_tolerance_rad: ... and within this of its own heading [rad] (half the
+            task's delta: 0.175 of 0.35). After resistance it settles for the task itself:
+            the true handle and the normal, within R and delta (docs/operator.md).
+        grasp_s: after the operator commits (satisfied and held: it grasps), the grasp
+            reaches the robot `world.delay_s` later and the fingers take this long to close;
+            the trial ends then, and success is judged on that settled pose [s].
+        attempts: runs each simulated person makes in each mode (the paper: three runs per
+            trial); eq (6)'s history term of a run is fed from the person's previous runs in
+            that mode.
         lead_probability: share of operators who move along y before x.
         max_trial_s: a closed-loop trial ends after this long in any case [s].
         profile: the closed-loop person (None: `OperatorProfile()` capped at the robot's
@@ -162,12 +181,14 @@ class SimConfig:
     handle_normal_rad: float = math.pi / 4
     success_radius_m: float = 0.03
     success_heading_rad: float = 0.35
-    goal_sigma_m: float = 0.02
+    world: Impairments = field(default_factory=Impairments)
     goal_heading_sigma_rad: float = 0.0
     side_offset_rad: tuple[float, float] = (0.15, 0.30)
     deviate_rad: tuple[float, float] = (0.5, 0.8)
     operator_tolerance_m: float = 0.015
-    operator_tolerance_rad: float = 0.1
+    operator_tolerance_rad: float = 0.175
+    grasp_s: float = 0.5
+    attempts: int = 3
     lead_probability: float = 0.8
     max_trial_s: float = 60.0
     profile: OperatorProfile | None = None
@@ -196,7 +217,13 @@ class SimConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"{name} must be finite and > 0, got {v!r}")
-        for name in ("goal_sigma_m", "goal_heading_sigma_rad"):
+        if not isinstance(self.world, Impairments):
+            raise ConfigError(f"world must be an Impairments, got {self.world!r}")
+        if isinstance(self.attempts, bool) or not isinstance(self.attempts, int):
+            raise ConfigError(f"attempts must be an integer, got {self.attempts!r}")
+        if self.attempts < 1:
+            raise ConfigError(f"attempts must be >= 1, got {self.attempts}")
+        for name in ("goal_heading_sigma_rad", "grasp_s"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ConfigError(f"{name} must be finite and >= 0, got {v!r}")
@@ -231,6 +258,12 @@ class SimConfig:
         return self.operator == "closed-loop"
 
     @property
+    def runs(self) -> int:
+        """Runs per person and mode: `attempts` for the closed-loop operator; one for an
+        open-loop operator (the paper's simulation: no previous attempts)."""
+        return self.attempts if self.closed_loop else 1
+
+    @property
     def start_heading(self) -> float:
         """The start heading: the normal's for the deviate operator (close early)."""
         return self.handle_normal_rad if self.operator == "deviate" else self.start_heading_rad
@@ -248,6 +281,8 @@ class SimConfig:
                 v = _jsonable(dataclasses.asdict(self.operator_strategy))
             elif f.name == "profile":
                 v = _jsonable(dataclasses.asdict(self.operator_profile))
+            elif f.name == "world":
+                v = v.to_dict()
             elif isinstance(v, tuple):
                 v = list(v)
             out[f.name] = v
@@ -329,14 +364,32 @@ def _draws(cfg: SimConfig, index: int) -> tuple[np.random.Generator, Array]:
     rng = np.random.default_rng([cfg.seed, index])
     hx, hy = cfg.handle_xy_m
     noise = rng.standard_normal(3)
+    sigma = cfg.world.goal_sigma_m
     robot_goal = np.array(
         [
-            hx + cfg.goal_sigma_m * noise[0],
-            hy + cfg.goal_sigma_m * noise[1],
+            hx + sigma * noise[0],
+            hy + sigma * noise[1],
             cfg.handle_normal_rad + cfg.goal_heading_sigma_rad * noise[2],
         ]
     )
     return rng, robot_goal
+
+
+def robot_goal(cfg: SimConfig, index: int, attempt: int) -> Array:
+    """The robot's goal (x, y, heading) in run `attempt` of trajectory `index`: run 0's is
+    `_draws`'; a later run's goal noise is drawn afresh from (seed, index, 2, attempt)."""
+    if attempt == 0:
+        return _draws(cfg, index)[1]
+    noise = np.random.default_rng([cfg.seed, index, 2, attempt]).standard_normal(3)
+    hx, hy = cfg.handle_xy_m
+    sigma = cfg.world.goal_sigma_m
+    return np.array(
+        [
+            hx + sigma * noise[0],
+            hy + sigma * noise[1],
+            cfg.handle_normal_rad + cfg.goal_heading_sigma_rad * noise[2],
+        ]
+    )
 
 
 def sample_trial(cfg: SimConfig, index: int) -> Trial:
@@ -387,8 +440,15 @@ def sample_closed_trial(cfg: SimConfig, index: int) -> ClosedTrial:
     return ClosedTrial(index, robot_goal, op_goal, lead, turn_within, (cfg.seed, index, 1))
 
 
-def closed_operator(cfg: SimConfig, trials: Sequence[ClosedTrial]) -> ClosedLoopOperator:
-    """The operators of `trials`, fresh (each mode starts them from the same state)."""
+def closed_operator(
+    cfg: SimConfig, trials: Sequence[ClosedTrial], attempt: int = 0
+) -> ClosedLoopOperator:
+    """The operators of `trials`, fresh (each mode starts them from the same state), in run
+    `attempt` (each run its own random stream: (seed, n, 1) for run 0, then (seed, n, 1, a)).
+
+    Each wants the robot at the true handle with its own heading within its own tolerance;
+    after resistance it settles for the task: the true handle and the normal, within the
+    success radius and heading tolerance (the via stage of a y-first person is unchanged)."""
     N = len(trials)
     sx, sy = cfg.start_xy_m
     h0 = cfg.start_heading
@@ -414,13 +474,23 @@ def closed_operator(cfg: SimConfig, trials: Sequence[ClosedTrial]) -> ClosedLoop
     y_only = np.array([0.0, 1.0, 0.0, 0.0, 0.0, 0.0])
     planar = np.array([1.0, 1.0, 0.0, 0.0, 0.0, 1.0])
     mask = np.stack([np.where(lead[:, None], y_only, planar), np.tile(planar, (N, 1))], 1)
+    hx, hy = cfg.handle_xy_m
+    task = planar_state(
+        np.stack([first[:, 0], np.full(N, hx)], 1),
+        np.stack([first[:, 1], np.full(N, hy)], 1),
+        np.stack([first[:, 2], np.full(N, cfg.handle_normal_rad)], 1),
+    )
+    accept = (cfg.success_radius_m, cfg.success_heading_rad, 1.0)
+    task_tolerance = np.stack(
+        [np.where(lead[:, None], passing, accept), np.broadcast_to(accept, (N, 3))], 1
+    )
     intention = Intention(
         targets, tolerance, mask, np.where(lead, 2, 1).astype(np.int64),
-        np.array([t.turn_within_m for t in trials]),
+        np.array([t.turn_within_m for t in trials]), task, task_tolerance,
     )  # fmt: skip
     start = planar_state(np.full(N, sx), np.full(N, sy), np.full(N, h0))
-    rngs = [np.random.default_rng(t.seed) for t in trials]
-    return ClosedLoopOperator(intention, start, cfg.operator_profile, rngs)
+    rngs = [np.random.default_rng(t.seed if attempt == 0 else (*t.seed, attempt)) for t in trials]
+    return ClosedLoopOperator(intention, start, cfg.operator_profile, rngs, world=cfg.world)
 
 
 @dataclass(frozen=True)
@@ -444,11 +514,60 @@ class ModeResult:
     hand_hist: NDArray[np.int64]  # the hand's (x, y, heading) histogram in this mode
     hand_paths: Array  # (P, T', 3) the hand's paths of the first trajectories
     variants: dict[str, Array]  # per-trajectory metric variants (`metric_variants`)
+    committed: NDArray[np.bool_]  # (N,) the closed-loop operator committed (True for open loop)
+    hand_final: Array  # (N, 3) the hand's final x, y, heading
+    attempt: NDArray[np.int64]  # (N,) the run of each row (0 first)
+    history_norm: Array  # (N,) |eq (6)'s history term| (L1) the run's arbitration received
+
+
+#: ModeResult's fields that are not one row per trial (summed or kept for the first paths).
+_POOLED = ("hist", "paths", "hand_hist", "hand_paths")
+
+
+def concat_results(parts: Sequence[ModeResult]) -> ModeResult:
+    """The rows of `parts` one after the other (histograms summed, paths concatenated)."""
+    out: dict[str, Any] = {}
+    for f in dataclasses.fields(ModeResult):
+        vals = [getattr(p, f.name) for p in parts]
+        if f.name in ("hist", "hand_hist"):
+            out[f.name] = np.sum(vals, axis=0)
+        elif f.name in ("paths", "hand_paths"):
+            out[f.name] = _cat_paths(vals)
+        elif f.name == "variants":
+            out[f.name] = {k: np.concatenate([v[k] for v in vals]) for k in vals[0]}
+        else:
+            out[f.name] = np.concatenate(vals)
+    return ModeResult(**out)
+
+
+def take_rows(r: ModeResult, order: NDArray[np.intp]) -> ModeResult:
+    """The rows `order` of r (the pooled fields as they are)."""
+    out: dict[str, Any] = {}
+    for f in dataclasses.fields(ModeResult):
+        v = getattr(r, f.name)
+        if f.name in _POOLED:
+            out[f.name] = v
+        elif f.name == "variants":
+            out[f.name] = {k: x[order] for k, x in v.items()}
+        else:
+            out[f.name] = v[order]
+    return ModeResult(**out)
+
+
+def _cat_paths(arrs: Sequence[Array]) -> Array:
+    arrs = [a for a in arrs if a.shape[0] > 0]
+    if not arrs:
+        return np.zeros((0, 1, 3))
+    T = max(a.shape[1] for a in arrs)
+    return np.concatenate(
+        [np.pad(a, ((0, 0), (0, T - a.shape[1]), (0, 0)), constant_values=np.nan) for a in arrs]
+    )
 
 
 @dataclass(frozen=True)
 class ChunkResult:
-    """Results of a contiguous set of trajectories under every mode."""
+    """Results of a contiguous set of trajectories under every mode: `runs` rows per
+    trajectory in the modes' results (row n * runs + a: run a of trajectory n)."""
 
     indices: NDArray[np.int64]
     lengths: NDArray[np.int64]
@@ -503,23 +622,55 @@ def run_chunk(
     idx = np.asarray(indices, dtype=np.int64)
     ranges = hist_ranges(cfg)
     n_paths = int(np.clip(cfg.max_paths - idx[0], 0, len(idx))) if len(idx) else 0
-    goals, lead, hands = _hands_for(cfg, idx, len(cfg.modes))
-    modes = _run_modes(cfg, cfg.modes, hands, goals, ranges, n_paths, on_progress)
+    C, N, A = len(cfg.modes), len(idx), cfg.runs
+    runs: list[dict[str, ModeResult]] = []
+    history: Array | None = None
+    terminals: list[Array] = []  # per run, the hands' final (x, y, heading), (C N, 3)
+    for a in range(A):
+        goals, lead, hands = _hands_for(cfg, idx, C, a)
+        runs.append(
+            _run_modes(
+                cfg, cfg.modes, hands, goals, ranges, n_paths if a == 0 else 0, on_progress,
+                history, a,
+            )
+        )  # fmt: skip
+        if a + 1 < A:  # eq (6)'s last term for the next run: this person's runs so far
+            terminals.append(np.concatenate([runs[a][m.value].hand_final for m in cfg.modes]))
+            history = _history(cfg, np.stack(terminals, 1))
+    # Row n * A + a: run a of trajectory n (so chunks concatenate in trajectory order).
+    order = np.arange(N * A).reshape(A, N).T.ravel()
+    modes = {
+        m.value: take_rows(concat_results([r[m.value] for r in runs]), order) for m in cfg.modes
+    }
     first = modes[cfg.modes[0].value]
     return ChunkResult(idx, first.lengths, lead, first.hand_hist, first.hand_paths, modes)
 
 
+def _history(cfg: SimConfig, terminals: Array) -> Array:
+    """Eq (6)'s history term per row (R, 6) from the rows' previous runs: their hands'
+    final planar poses (R, A, 3); every run starts at the start pose."""
+    R, A = terminals.shape[:2]
+    sx, sy = cfg.start_xy_m
+    h0 = cfg.start_heading
+    starts = planar_state(np.full((R, A), sx), np.full((R, A), sy), np.full((R, A), h0))
+    ends = planar_state(terminals[..., 0], terminals[..., 1], terminals[..., 2])
+    return history_terms(starts, ends, cfg.arbitration.still_offset(0))
+
+
 def _hands_for(
-    cfg: SimConfig, idx: NDArray[np.int64], copies: int
+    cfg: SimConfig, idx: NDArray[np.int64], copies: int, attempt: int = 0
 ) -> tuple[Array, NDArray[np.bool_], _Hands]:
     """The robot goals (N, 3), lead flags (N,) and the hands of `copies` x N rows (one block
-    of N per mode) of trajectories `idx`."""
+    of N per mode) of trajectories `idx`, in run `attempt`."""
     if cfg.closed_loop:
         closed = [sample_closed_trial(cfg, int(i)) for i in idx]
-        goals = np.stack([t.robot_goal for t in closed])
+        goals = np.stack([robot_goal(cfg, int(i), attempt) for i in idx])
         lead = np.array([t.lead for t in closed], dtype=bool)
-        T = round(cfg.max_trial_s / cfg.dt_s) + 1
-        return goals, lead, _ClosedHands(closed_operator(cfg, closed * copies), T)
+        delay = round(cfg.world.delay_s / cfg.dt_s)
+        settle = delay + round(cfg.grasp_s / cfg.dt_s)
+        T = round(cfg.max_trial_s / cfg.dt_s) + 1 + settle
+        op = closed_operator(cfg, closed * copies, attempt)
+        return goals, lead, _ClosedHands(op, T, delay, settle)
     trials = [sample_trial(cfg, int(i)) for i in idx]
     stacked, lengths = stack([t.operator for t in trials])
     goals = np.stack([t.robot_goal for t in trials])
@@ -588,6 +739,7 @@ class _Hands:
     T: int  # the most states a trial can have
     lengths: NDArray[np.int64]  # (C N,) states of each trial (closed loop: T until it ends)
     gave_up: NDArray[np.bool_]  # (C N,) the operator gave up (closed loop)
+    committed: NDArray[np.bool_]  # (C N,) the operator committed (open loop: all)
 
     def start(self) -> HandState:
         raise NotImplementedError
@@ -616,6 +768,7 @@ class _OpenHands(_Hands):
         N = lengths.shape[0]
         self.lengths = np.tile(lengths, copies)
         self.gave_up = np.zeros(copies * N, dtype=bool)
+        self.committed = np.ones(copies * N, dtype=bool)
         self.T = int(hands_tm.position.shape[0])
         self.cols = np.tile(np.arange(N), copies)  # the trajectory of each current row
 
@@ -634,21 +787,27 @@ class _OpenHands(_Hands):
 
 
 class _ClosedHands(_Hands):
-    """Hands from closed-loop operators, who watch the robot (one operator per row)."""
+    """Hands from closed-loop operators, who watch the robot (one operator per row), as the
+    robot receives them: `delay` ticks late (the command path of the teleoperation delay).
+    A trial ends when its operator gives up, or `settle` ticks after it commits (the grasp
+    reaches the robot and the fingers close): success is judged on that settled pose."""
 
-    def __init__(self, op: ClosedLoopOperator, T: int) -> None:
+    def __init__(self, op: ClosedLoopOperator, T: int, delay: int = 0, settle: int = 0) -> None:
         self.op = op
         self.T = T
+        self.settle = settle
         N = op.start.position.shape[0]
         self.lengths = np.full(N, T, dtype=np.int64)
         self.gave_up = np.zeros(N, dtype=bool)  # by original row (the operator compacts)
+        self.committed = np.zeros(N, dtype=bool)
+        self.line = CommandDelay(op.start, delay)
         self.prev = op.start
 
     def start(self) -> HandState:
         return self.op.start
 
     def next(self, k: int, t_s: float) -> tuple[HandState, HandState]:
-        H = self.op.hand(t_s)
+        H = self.line.push(self.op.hand(t_s))
         prev, self.prev = self.prev, H
         return H, prev
 
@@ -657,11 +816,17 @@ class _ClosedHands(_Hands):
 
     def ended(self, rows: NDArray[np.int64], k: int) -> None:
         newly = self.op.done & (self.lengths[rows] == self.T)
-        self.lengths[rows[newly]] = k + 2
-        self.gave_up[rows[newly]] = self.op.gave_up[newly]
+        if not newly.any():
+            return
+        committed = self.op.committed[newly]
+        ended = rows[newly]
+        self.lengths[ended] = np.minimum(k + 2 + np.where(committed, self.settle, 0), self.T - 1)
+        self.gave_up[ended] = self.op.gave_up[newly]
+        self.committed[ended] = committed
 
     def keep(self, keep: NDArray[np.bool_], k: int) -> None:
         self.op.select(keep)
+        self.line.select(keep)
         self.prev = self.prev.take(keep)
 
 
@@ -673,6 +838,7 @@ def _simulate(
     record: list[ArbitrationStep] | None = None,
     on_step: Callable[[int, NDArray[np.int64], Array, Array], None] | None = None,
     on_progress: Callable[[int], None] | None = None,
+    history: Array | None = None,
 ) -> tuple[Array, NDArray[np.int64], Array]:
     """Step the batch of len(modes) x N rows (row j = m N + n: trajectory n under mode m)
     through time. Returns the robot's and the hand's (x, y, heading), (C N, T, 3) each, NaN
@@ -682,7 +848,8 @@ def _simulate(
     dropped from the batch every few ticks (the arbitration is row-wise, so this changes no
     result, only the work). on_step(k, rows, U_human, U_out) is called after tick k with the
     rows whose trial includes tick k; on_progress with counts of trials that ended; `record`
-    (one mode only) gets every step.
+    (one mode only) gets every step; `history` (C N, 6) is eq (6)'s history term of each row
+    (None: no previous runs).
     """
     C, N = len(modes), goals.shape[0]
     if record is not None and C != 1:
@@ -698,6 +865,7 @@ def _simulate(
     g = np.tile(goals, (C, 1))
     G = planar_state(g[:, 0], g[:, 1], g[:, 2])
     rows = np.arange(J)
+    hist = history
     X, Xp, X0r = X0, X0, X0
     H0 = hands.start()
     # Robot and hand (x, y) and (cos, sin) of the heading per state. Uninitialised: every
@@ -724,20 +892,15 @@ def _simulate(
                 state = state.select(keep)
                 mixed = None if mixed is None else mixed.select(keep)
                 X, Xp, X0r, H0, G = (h.take(keep) for h in (X, Xp, X0r, H0, G))
+                hist = None if hist is None else hist[keep]
                 hands.keep(keep, k)
         t_next = (k + 1) * cfg.dt_s
         H, Hp = hands.next(k, t_next)
         hands.ended(rows, k)
         inp = ArbitrationInput(
-            X_human=H,
-            X_human_prev=Hp,
-            X_human_start=H0,
-            X_current=X,
-            X_prev=Xp,
-            X_start=X0r,
-            X_goal=G,
-            dt=cfg.dt_s,
-        )
+            X_human=H, X_human_prev=Hp, X_human_start=H0, X_current=X, X_prev=Xp, X_start=X0r,
+            X_goal=G, dt=cfg.dt_s, history_term=hist,
+        )  # fmt: skip
         state, step = arb.step(state, inp, mixed)
         Xp, X = X, step.X_next
         hands.observe(t_next, X)
@@ -788,8 +951,11 @@ def _run_modes(
     ranges: Array,
     n_paths: int,
     on_progress: Callable[[int], None] | None = None,
+    history: Array | None = None,
+    attempt: int = 0,
 ) -> dict[str, ModeResult]:
-    """Simulate every mode in one batch (`_simulate`), then each mode's metrics."""
+    """Simulate every mode in one batch (`_simulate`), then each mode's metrics (run
+    `attempt`, with eq (6)'s history term `history` (C N, 6) per row, None for none)."""
     T, N = hands.T, goals.shape[0]
     J = len(modes) * N
     # Every action of every trial, time-major (one contiguous write per tick); the metrics
@@ -804,8 +970,9 @@ def _run_modes(
         acted[k, rows] = True
 
     poses, lengths, hand = _simulate(
-        cfg, modes, hands, goals, on_step=on_step, on_progress=on_progress
+        cfg, modes, hands, goals, on_step=on_step, on_progress=on_progress, history=history
     )
+    h_norm = np.zeros(J) if history is None else np.abs(history).sum(-1)
     out = {}
     for c, mode in enumerate(modes):
         part = slice(c * N, (c + 1) * N)
@@ -817,11 +984,14 @@ def _run_modes(
             L,
             hand[part, :Tm],
             hands.gave_up[part],
+            hands.committed[part],
             U_h_all[: Tm - 1, part],
             U_out_all[: Tm - 1, part],
             acted[: Tm - 1, part],
             ranges,
             n_paths,
+            attempt,
+            h_norm[part],
         )
     return out
 
@@ -832,14 +1002,18 @@ def _mode_result(
     lengths: NDArray[np.int64],
     hand: Array,
     gave_up: NDArray[np.bool_],
+    committed: NDArray[np.bool_],
     U_h_tm: Array,
     U_out_tm: Array,
     acted_tm: NDArray[np.bool_],
     ranges: Array,
     n_paths: int,
+    attempt: int = 0,
+    history_norm: Array | None = None,
 ) -> ModeResult:
     """One mode's per-trajectory results from its states (N, T, 3) and its actions,
-    time-major (T - 1, N, ...)."""
+    time-major (T - 1, N, ...). A closed-loop trial succeeds only if its operator committed
+    and the robot's settled pose (the trial's last) is in the success region."""
     N, T = poses.shape[:2]
     # (N, T - 1, ...) views: the metrics reduce over the time axis wherever it lies in memory.
     U_h_all, U_out_all = np.swapaxes(U_h_tm, 0, 1), np.swapaxes(U_out_tm, 0, 1)
@@ -884,7 +1058,7 @@ def _mode_result(
     )
     rows = np.arange(N)
     last = lengths - 1
-    success = inside[rows, last]
+    success = inside[rows, last] & committed
     if cfg.closed_loop:  # the operator decides when the trial is done
         time_s = np.maximum(last, 1) * cfg.dt_s
     else:  # settling time: the first tick after the last one outside the region
@@ -911,6 +1085,10 @@ def _mode_result(
         hand_hist=metrics.trajectory_histogram(hand[hand_valid], HIST_BINS, ranges),
         hand_paths=_paths(hand[:n_paths], lengths[:n_paths]),
         variants=_variants(cfg, U_h_all, U_out_all, acted, lit, c),
+        committed=committed,
+        hand_final=hand[rows, last],
+        attempt=np.full(N, attempt, dtype=np.int64),
+        history_norm=np.zeros(N) if history_norm is None else history_norm,
     )
 
 
@@ -992,46 +1170,13 @@ def merge(cfg: SimConfig, chunks: Sequence[ChunkResult]) -> StudyResult:
     if not np.array_equal(idx, np.arange(cfg.trajectories)):
         raise ValueError("chunks do not cover the trajectories exactly once")
 
-    def cat(arrs: list[Array]) -> Array:
-        return np.concatenate(arrs) if arrs else np.zeros(0)
-
-    def cat_paths(arrs: list[Array]) -> Array:
-        arrs = [a for a in arrs if a.shape[0] > 0]
-        if not arrs:
-            return np.zeros((0, 1, 3))
-        T = max(a.shape[1] for a in arrs)
-        return np.concatenate(
-            [np.pad(a, ((0, 0), (0, T - a.shape[1]), (0, 0)), constant_values=np.nan) for a in arrs]
-        )
-
-    modes = {}
-    for m in cfg.modes:
-        parts = [c.modes[m.value] for c in ordered]
-        modes[m.value] = ModeResult(
-            success=np.concatenate([p.success for p in parts]),
-            time_s=cat([p.time_s for p in parts]),
-            cosine_mean=cat([p.cosine_mean for p in parts]),
-            cosine_sum=cat([p.cosine_sum for p in parts]),
-            agreement=cat([p.agreement for p in parts]),
-            n_actions=np.concatenate([p.n_actions for p in parts]),
-            final=np.concatenate([p.final for p in parts]),
-            hist=np.sum([p.hist for p in parts], axis=0),
-            paths=cat_paths([p.paths for p in parts]),
-            phase_cos=np.concatenate([p.phase_cos for p in parts]),
-            phase_agree=np.concatenate([p.phase_agree for p in parts]),
-            y_only=np.concatenate([p.y_only for p in parts]),
-            lengths=np.concatenate([p.lengths for p in parts]),
-            gave_up=np.concatenate([p.gave_up for p in parts]),
-            hand_hist=np.sum([p.hand_hist for p in parts], axis=0),
-            hand_paths=cat_paths([p.hand_paths for p in parts]),
-            variants={k: cat([p.variants[k] for p in parts]) for k in parts[0].variants},
-        )
+    modes = {m.value: concat_results([c.modes[m.value] for c in ordered]) for m in cfg.modes}
     return StudyResult(
         config=cfg,
         lengths=np.concatenate([c.lengths for c in ordered]),
         lead=np.concatenate([c.lead for c in ordered]),
         operator_hist=np.sum([c.operator_hist for c in ordered], axis=0),
-        operator_paths=cat_paths([c.operator_paths for c in ordered]),
+        operator_paths=_cat_paths([c.operator_paths for c in ordered]),
         modes=modes,
     )
 
@@ -1114,12 +1259,15 @@ def summarise(res: StudyResult, figures: StudyResult | None = None) -> dict[str,
                 **_mean_ci(x_per_y(r)),
             },
             "gave_up_share": float(r.gave_up.mean()),
+            "committed_share": float(r.committed.mean()),
+            "runs": [_run_summary(r, r.attempt == a) for a in range(cfg.runs)],
             "metric_variants": _metric_variants(r),
         }
     out: dict[str, Any] = {
         "schema": SCHEMA,
         "seed": cfg.seed,
         "trajectories": cfg.trajectories,
+        "runs": cfg.runs,
         "modes": modes,
         "tests": {},
         "divergence": _divergences(res),
@@ -1137,6 +1285,19 @@ def summarise(res: StudyResult, figures: StudyResult | None = None) -> dict[str,
     if "S" in res.modes and "DS" in res.modes:
         out["tests"]["S_vs_DS"] = compare(res.modes["S"], res.modes["DS"])
     return out
+
+
+def _run_summary(r: ModeResult, rows: NDArray[np.bool_]) -> dict[str, float]:
+    """One run's success (Laplace), time (geometric mean), shares and history term."""
+    sr = metrics.success_rate(int(r.success[rows].sum()), int(rows.sum()))
+    return {
+        "n": int(rows.sum()),
+        "success_rate": sr.laplace,
+        "time_s": metrics.geometric_mean(r.time_s[rows]).mean,
+        "committed_share": float(r.committed[rows].mean()),
+        "gave_up_share": float(r.gave_up[rows].mean()),
+        "history_term_l1": float(r.history_norm[rows].mean()),
+    }
 
 
 def headline(r: ModeResult) -> dict[str, float]:

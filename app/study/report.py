@@ -157,6 +157,7 @@ def markdown(summary: dict[str, Any]) -> str:
             for test, tlabel in (("two_sample_t", "two-sample t"), ("paired_t", "paired t")):
                 r = tests[key][test]
                 lines.append(f"| {label} | {tlabel} | {r['t']:.3f} | {_p(r['p_value'])} |")
+    lines += _runs_table(summary)
     lines += _variants_table(summary)
     lines += _fig5_section(summary["fig5_fig6"])
     lines += ["", "## Cosine distance and agreement by phase of the trial (deciles)", ""]
@@ -177,11 +178,31 @@ def markdown(summary: dict[str, Any]) -> str:
         "",
         f"- handle at {c['handle_xy_m']} m, normal {c['handle_normal_rad']:.4f} rad; success R = "
         f"{c['success_radius_m']} m, delta = {c['success_heading_rad']} rad",
-        f"- robot goal noise sigma = {c['goal_sigma_m']} m; dt = {c['dt_s']:.5f} s",
+        f"- world (docs/operator.md): {json.dumps(c['world'], sort_keys=True)}; dt = "
+        f"{c['dt_s']:.5f} s; runs per person and mode: {summary['runs']}",
         f"- arbitration: {json.dumps(c['arbitration'], sort_keys=True)}",
         "",
     ]
     return "\n".join(lines)
+
+
+def _runs_table(summary: dict[str, Any]) -> list[str]:
+    """Success, time and give-ups per run of each person (run 1 has no history term)."""
+    lines = [
+        "",
+        "## Per run (each person's runs in each mode; eq (6)'s history term from run 2 on)",
+        "",
+        "| Mode | Run | Success | Time [s] | Committed | Gave up | mean abs history term |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for name, m in summary["modes"].items():
+        for k, r in enumerate(m["runs"]):
+            lines.append(
+                f"| {name} | {k + 1} | {r['success_rate']:.3f} | {r['time_s']:.2f} | "
+                f"{r['committed_share']:.3f} | {r['gave_up_share']:.3f} | "
+                f"{r['history_term_l1']:.3f} |"
+            )
+    return lines
 
 
 def _variants_table(summary: dict[str, Any]) -> list[str]:
