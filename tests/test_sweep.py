@@ -235,3 +235,20 @@ def test_sweep_on_a_local_two_worker_cluster_writes_resumes_and_pairs(
     )  # fmt: skip
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "other settings" in err[0]
+
+
+def test_the_sweep_module_and_a_cell_leave_ray_unloaded() -> None:
+    """Only app/tune/cluster.py imports Ray: a cell computes in plain Python."""
+    code = (
+        "import sys\n"
+        "import dsteleop.app.cli.sim\n"
+        "from dsteleop.app.study import sweep, core\n"
+        "from dsteleop.arbitration import Mode\n"
+        "cfg = core.SimConfig(trajectories=2, modes=(Mode.S, Mode.DS))\n"
+        "r = sweep.cell_task(cfg, (0.0, 0.0, 0.0))\n"
+        "print(sorted(r['modes']), 'ray' in sys.modules)\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True
+    )
+    assert out.stdout.split() == ["['DS',", "'S']", "False"]

@@ -5,7 +5,9 @@ The same sweep twice (`run_sweep`, each into a fresh temporary folder): 8 cells 
 delay and depth error at 2 levels each: 0 and the default grid's middle level) x the study's
 four modes x 100 trajectories (`--quick`: 2 cells x 20 trajectories). `seconds` is the
 sweep's wall time with its cluster's start; `cluster_start_s` is that start alone, and
-`cells_s` the rest. `speedup` is 1 worker's `seconds` over 2 workers'. The machine's CPU
+`cells_s` the rest; `cell_seconds_summed` adds up each cell's own wall time in its worker
+(it grows when the workers compete for cores). `speedup` is 1 worker's `seconds` over 2
+workers', `speedup_without_start` the same without the clusters' starts. The machine's CPU
 model and load are beside the figures (`machine`, `machine_after`): on a shared machine the
 second worker only helps as much as a second core is free.
 """
@@ -57,7 +59,7 @@ def run(quick: bool) -> dict[str, Any]:
             "seconds": round(seconds, 2),
             "cluster_start_s": round(start, 2),
             "cells_s": round(seconds - start, 2),
-            "cpu_seconds_in_cells": round(
+            "cell_seconds_summed": round(
                 sum(c["seconds"] for c in res.summary["cells"] if c["seconds"]), 2
             ),
             "load_average_before": load,

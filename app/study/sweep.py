@@ -408,7 +408,7 @@ def markdown(summary: dict[str, Any]) -> str:
         "| goal sigma [m] | delay [s] | depth sigma [m] | "
         + " | ".join(modes)
         + " | best | DS - best scalar [95 % CI] | McNemar p (exact / mid) | verdict |",
-        "| --- | --- | --- | " + " --- |" * len(modes) + " --- | --- | --- | --- |",
+        "| --- | --- | --- |" + " --- |" * len(modes) + " --- | --- | --- | --- |",
     ]
     for c in summary["cells"]:
         g, d, z = (c["cell"][f] for f in AXES.values())
@@ -469,12 +469,15 @@ def figure(summary: dict[str, Any], path: Path) -> None:
                     continue
                 x = c.get("ds_minus_best_scalar")
                 label = str(c["best_mode"])
+                dark = False
                 if x is not None:
                     val[i, j] = x["success_difference"]
+                    dark = abs(val[i, j]) > 0.6 * vmax
                     lo, hi = x["ci95"]
                     star = "*" if x["mcnemar"]["p_exact"] < summary["alpha"] else ""
                     label += f"\n{x['success_difference']:+.3f}{star}\n[{lo:+.3f}, {hi:+.3f}]"
-                ax.text(j, i, label, ha="center", va="center", fontsize=7)
+                colour = "white" if dark else "black"
+                ax.text(j, i, label, ha="center", va="center", fontsize=7, color=colour)
         image = ax.imshow(val, cmap="RdBu", vmin=-vmax, vmax=vmax, aspect="auto")
         ax.set_xticks(range(len(delays)), [f"{d:g}" for d in delays])
         ax.set_yticks(range(len(goals)), [f"{g:g}" for g in goals])
