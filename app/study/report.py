@@ -154,7 +154,7 @@ def markdown(summary: dict[str, Any]) -> str:
         "",
         "Beside the paper's statistics, labelled: arithmetic means (time, cosine distance sum, "
         "agreement), the cosine distance as a mean per action, the idle actions both metrics "
-        "skipped, and the censored times (the time is a lower bound: "
+        "skipped, and the censored times ("
         + next(iter(summary["modes"].values()))["time_s"]["censored"]["about"]
         + ").",
         "",
