@@ -68,6 +68,8 @@ def test_with_world_sets_the_cell_and_keeps_the_rest() -> None:
         (["depth=0,0"], "given twice"),
         (["goal=0", "goal=0.1"], "axis 'goal' given twice"),
         (["goal="], "'' is not a number"),
+        (["goal=0", "--trajectories", "1"], "--sweep needs --trajectories >= 2"),
+        (["goal=0", "--resume", "--address", "nowhere"], "expected ray://HOST:PORT"),
     ],
 )
 def test_a_grid_that_does_not_parse_is_one_line_and_exit_2(

@@ -180,6 +180,10 @@ def command(args: argparse.Namespace) -> SimCommand:
         from dsteleop.app.study.sweep import parse_grid
 
         sweep = parse_grid(args.sweep)
+        if args.address is not None:
+            from dsteleop.app.tune.cluster import parse_address
+
+            parse_address(args.address)
     elif args.address is not None or args.resume:
         raise ConfigError("--address and --resume go with --sweep")
     trajectories = args.trajectories
@@ -187,6 +191,10 @@ def command(args: argparse.Namespace) -> SimCommand:
         trajectories = 500 if sweep is not None else 1000
     if trajectories < 1:
         raise ConfigError(f"--trajectories must be >= 1, got {trajectories}")
+    if sweep is not None and trajectories < 2:
+        raise ConfigError(
+            f"--sweep needs --trajectories >= 2 (paired intervals), got {trajectories}"
+        )
     if sweep is not None and args.workers < 0:
         raise ConfigError(f"--workers must be >= 0 (0: every core), got {args.workers}")
     study = SimConfig(
