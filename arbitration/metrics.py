@@ -6,11 +6,27 @@ Assistance quality, per action (one tick, one (6 + F) velocity vector):
     agreement         ag = 1 if U_h . U_out > 0 else 0
     ratio of agreement phi = sum(ag) / number of actions          in [0, 1]
 
-An action where |U_h| or |U_out| is 0 (at most `tol`) has no direction: it is skipped by the
-cosine distance (reported as the sum over actions and the mean per action). The ratio of
-agreement skips actions where the operator is idle (|U_h| <= tol: there is nothing to agree
-with, and a pause would otherwise count as disagreement even in manual mode); an action where
-the operator moves and the output does not counts as disagreement (U_h . U_out = 0).
+The paper's cosine distance is the SUM over the actions of a trial (its headline here);
+the mean per action (sum / counted actions) is reported beside it, labelled: the sum grows
+with the trial's length, the mean does not.
+
+Idle actions, treated alike by both metrics: an action where |U_h| or |U_out| is at most
+`tol` (`IDLE_TOL` = 1e-9 in the actions' units, nine orders of magnitude under any velocity
+limit: numerically zero) has no direction. The cosine distance is undefined there, and the
+paper's `ag` would count it as disagreement (U_h . U_out = 0), so a pause of the operator, or
+an output that is exactly zero (a robot parked at its goal under alpha = 1), would count
+against the mode in one metric and not at all in the other. Both metrics skip exactly the
+same actions (`idle_actions`), and report how many (`n_skipped`). `agreement(...,
+skip_idle=False)` is the paper's literal count over every action.
+
+McNemar's test of paired success (the same trials under two conditions; Fagerland, Lydersen
+and Laake 2013): with b trials that only the first condition succeeded and c that only the
+second did, under H0 X = b ~ Binomial(b + c, 1/2); with k = min(b, c), n = b + c,
+
+    exact  p = min(1, 2 P(X <= k))
+    mid-p  p = min(1, 2 P(X <= k) - P(X = k))
+
+(p = 1 when n = 0). The concordant trials carry no information about the difference.
 
 Success rate of s successes in n trials, with z = 1.96 for 95 %:
 
@@ -50,6 +66,8 @@ from scipy import special
 Array = NDArray[np.float64]
 
 Z95 = 1.959963984540054  # the 0.975 quantile of the standard normal
+#: Norm [units of the actions] at or below which an action counts as idle (module docstring).
+IDLE_TOL = 1e-9
 
 
 @dataclass(frozen=True)
@@ -57,10 +75,10 @@ class CosineDistance:
     """Cosine distance of the actions of one or many sequences (batch shape (...)).
 
     Attributes:
-        total: sum over the counted actions [unitless, each in [0, 2]].
-        mean: total / n_actions (nan when no action was counted).
+        total: sum over the counted actions [unitless, each in [0, 2]]: the paper's metric.
+        mean: total / n_actions, the mean per action (nan when no action was counted).
         n_actions: actions counted (both vectors non-zero).
-        n_skipped: actions skipped (a zero-norm vector).
+        n_skipped: actions skipped as idle (`idle_actions`).
     """
 
     total: Array
@@ -76,7 +94,7 @@ class Agreement:
     Attributes:
         ratio: n_agree / n_actions in [0, 1] (nan when no action was counted).
         n_agree: actions with U_h . U_out > 0.
-        n_actions: actions counted (the operator moved, or all when skip_idle is False).
+        n_actions: actions counted (neither vector idle, or all when skip_idle is False).
     """
 
     ratio: Array
@@ -124,6 +142,25 @@ class TTest:
 
 
 @dataclass(frozen=True)
+class McNemarTest:
+    """McNemar's test of paired success (module docstring).
+
+    Attributes:
+        first_only: pairs where only the first condition succeeded (b).
+        second_only: pairs where only the second did (c).
+        n: pairs.
+        p_exact: two-sided exact binomial p-value.
+        p_mid: two-sided mid-p value.
+    """
+
+    first_only: int
+    second_only: int
+    n: int
+    p_exact: float
+    p_mid: float
+
+
+@dataclass(frozen=True)
 class ActionProducts:
     """Per-action inner products of the operator's and the output's actions, the terms every
     action metric is made of: dot = U_h . U_out, hh = |U_h|^2, oo = |U_out|^2 (shape (...)).
@@ -151,7 +188,14 @@ class ActionProducts:
         )
 
 
-def action_cosine_distance(U_h: ArrayLike, U_out: ArrayLike, tol: float = 1e-9) -> Array:
+def idle_actions(p: ActionProducts, tol: float = IDLE_TOL) -> NDArray[np.bool_]:
+    """The actions that have no direction: |U_h| <= tol or |U_out| <= tol (shape (...)).
+    Both the cosine distance and the ratio of agreement skip exactly these."""
+    t2 = tol * tol
+    return np.asarray((p.hh <= t2) | (p.oo <= t2))
+
+
+def action_cosine_distance(U_h: ArrayLike, U_out: ArrayLike, tol: float = IDLE_TOL) -> Array:
     """Cosine distance of every action, (..., D) -> (...), nan where a vector is zero.
 
     Args:
@@ -162,17 +206,16 @@ def action_cosine_distance(U_h: ArrayLike, U_out: ArrayLike, tol: float = 1e-9) 
     return cosine_distances(ActionProducts.of(U_h, U_out), tol)
 
 
-def cosine_distances(p: ActionProducts, tol: float = 1e-9) -> Array:
+def cosine_distances(p: ActionProducts, tol: float = IDLE_TOL) -> Array:
     """`action_cosine_distance` from the actions' products: 1 - dot / (|U_h| |U_out|), nan
-    where a norm is at or below `tol`."""
-    na, nb = np.sqrt(p.hh), np.sqrt(p.oo)
-    ok = (na > tol) & (nb > tol)
-    cos = p.dot / np.where(ok, na * nb, 1.0)
+    where the action is idle (`idle_actions`)."""
+    ok = ~idle_actions(p, tol)
+    cos = p.dot / np.where(ok, np.sqrt(p.hh) * np.sqrt(p.oo), 1.0)
     return np.where(ok, 1.0 - np.clip(cos, -1.0, 1.0), np.nan)
 
 
 def cosine_distance(
-    U_h: ArrayLike, U_out: ArrayLike, valid: ArrayLike | None = None, tol: float = 1e-9
+    U_h: ArrayLike, U_out: ArrayLike, valid: ArrayLike | None = None, tol: float = IDLE_TOL
 ) -> CosineDistance:
     """Cosine distance summed and averaged over the actions of a sequence.
 
@@ -212,7 +255,7 @@ def agreement(
     U_out: ArrayLike,
     valid: ArrayLike | None = None,
     skip_idle: bool = True,
-    tol: float = 1e-9,
+    tol: float = IDLE_TOL,
 ) -> Agreement:
     """Ratio of agreement: the share of actions with U_h . U_out > 0.
 
@@ -220,8 +263,10 @@ def agreement(
         U_h: operator actions (..., T, D).
         U_out: output actions (..., T, D).
         valid: optional (..., T) mask of the actions that belong to the sequence.
-        skip_idle: leave out actions where |U_h| <= tol (the operator is still).
-        tol: norm at or below which the operator counts as idle.
+        skip_idle: leave out the idle actions (`idle_actions`: the operator or the output
+            is still), exactly those the cosine distance skips; False: the paper's literal
+            count over every action.
+        tol: norm at or below which a vector counts as idle.
 
     Returns:
         Ratio and counts with the batch shape (...).
@@ -230,12 +275,15 @@ def agreement(
 
 
 def agreement_of(
-    p: ActionProducts, valid: ArrayLike | None = None, skip_idle: bool = True, tol: float = 1e-9
+    p: ActionProducts,
+    valid: ArrayLike | None = None,
+    skip_idle: bool = True,
+    tol: float = IDLE_TOL,
 ) -> Agreement:
     """`agreement` from the actions' products (..., T)."""
     mask = np.ones(p.dot.shape, dtype=bool) if valid is None else np.asarray(valid, dtype=bool)
     if skip_idle:
-        mask = mask & (p.hh > tol * tol)
+        mask = mask & ~idle_actions(p, tol)
     n = mask.sum(-1)
     k = (mask & (p.dot > 0.0)).sum(-1)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -285,6 +333,35 @@ def n1_chi_squared(s1: int, n1: int, s2: int, n2: int) -> ProportionTest:
         return ProportionTest(chi2=0.0, p_value=1.0, n=N)
     chi2 = float(a * d - b * c) ** 2 * (N - 1) / den
     return ProportionTest(chi2=chi2, p_value=float(special.erfc(math.sqrt(chi2 / 2.0))), n=N)
+
+
+def mcnemar(first: ArrayLike, second: ArrayLike) -> McNemarTest:
+    """McNemar's exact and mid-p test of paired success (module docstring).
+
+    Args:
+        first: (n,) success (bool or 0/1) of each trial under the first condition.
+        second: (n,) success of the same trials under the second condition.
+
+    Raises:
+        ValueError: different shapes, or a value that is not 0/1.
+    """
+    a, b = np.asarray(first), np.asarray(second)
+    if a.shape != b.shape:
+        raise ValueError(f"paired outcomes differ in shape: {a.shape} vs {b.shape}")
+    for x in (a, b):
+        if not np.isin(x, (0, 1)).all():
+            raise ValueError("paired outcomes must be booleans or 0/1")
+    a, b = a.astype(bool).ravel(), b.astype(bool).ravel()
+    n_b, n_c = int(np.sum(a & ~b)), int(np.sum(~a & b))
+    n = n_b + n_c
+    if n == 0:
+        return McNemarTest(n_b, n_c, int(a.size), 1.0, 1.0)
+    k = min(n_b, n_c)
+    cdf = float(special.bdtr(k, n, 0.5))
+    pmf = cdf - (float(special.bdtr(k - 1, n, 0.5)) if k > 0 else 0.0)
+    return McNemarTest(
+        n_b, n_c, int(a.size), min(1.0, 2.0 * cdf), min(1.0, max(0.0, 2.0 * cdf - pmf))
+    )
 
 
 def geometric_mean(samples: ArrayLike, confidence: float = 0.95) -> GeometricMean:

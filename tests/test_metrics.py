@@ -37,16 +37,31 @@ def test_cosine_distance_hand_worked() -> None:
 
 
 def test_agreement_hand_worked() -> None:
-    # dots: 1 (agree), -1 (disagree), idle operator (skipped), 0 with the operator moving
-    # (the output did not follow: disagree) -> 1 of 3.
+    # dots: 1 (agree), -1 (disagree), idle operator (skipped), idle output (skipped: the
+    # same actions the cosine distance skips) -> 1 of 2.
     U_h = [[1, 0], [1, 0], [0, 0], [0, 3]]
     U_out = [[1, 1], [-1, 0], [1, 0], [0, 0]]
     r = metrics.agreement(U_h, U_out)
     assert int(r.n_agree) == 1
-    assert int(r.n_actions) == 3
-    assert float(r.ratio) == pytest.approx(1.0 / 3.0)
+    assert int(r.n_actions) == 2
+    assert float(r.ratio) == pytest.approx(1.0 / 2.0)
     # The paper's literal count over every action: 1 of 4.
     assert float(metrics.agreement(U_h, U_out, skip_idle=False).ratio) == pytest.approx(0.25)
+
+
+def test_idle_actions_are_skipped_alike_by_both_metrics() -> None:
+    # An output under IDLE_TOL (numerically zero), an operator under it, and moving ones.
+    tiny = 0.5 * metrics.IDLE_TOL
+    U_h = np.array([[1.0, 0.0], [tiny, 0.0], [0.0, 1.0], [1.0, 1.0], [0.0, 0.0]])
+    U_out = np.array([[tiny, 0.0], [1.0, 0.0], [0.0, -2.0], [1.0, 0.0], [0.0, 0.0]])
+    idle = metrics.idle_actions(metrics.ActionProducts.of(U_h, U_out))
+    assert idle.tolist() == [True, True, False, False, True]
+    c = metrics.cosine_distance(U_h, U_out)
+    a = metrics.agreement(U_h, U_out)
+    assert int(c.n_actions) == int(a.n_actions) == 2
+    assert int(c.n_skipped) == 3
+    assert int(a.n_agree) == 1
+    assert float(c.total) == pytest.approx(2.0 + 1.0 - 1.0 / math.sqrt(2.0))
 
 
 def test_metrics_batch_and_mask() -> None:
@@ -263,3 +278,43 @@ def test_js_divergence_rejects_bad_histograms() -> None:
         metrics.js_divergence([0, 0], [1, 0])
     with pytest.raises(ValueError):
         metrics.js_divergence([-1, 2], [1, 0])
+
+
+# --- McNemar's test of paired success ---------------------------------------------------------
+
+
+def test_mcnemar_hand_worked() -> None:
+    # 10 pairs: 1 only the first succeeded, 6 only the second, 3 concordant. Under H0,
+    # X ~ Bin(7, 1/2): P(X <= 1) = (1 + 7) / 128, P(X = 1) = 7 / 128.
+    first = [1, 0, 0, 0, 0, 0, 0, 1, 1, 0]
+    second = [0, 1, 1, 1, 1, 1, 1, 1, 1, 0]
+    r = metrics.mcnemar(first, second)
+    assert (r.first_only, r.second_only, r.n) == (1, 6, 10)
+    assert r.p_exact == pytest.approx(2 * 8 / 128, rel=1e-12)
+    assert r.p_mid == pytest.approx(2 * 8 / 128 - 7 / 128, rel=1e-12)
+
+
+def test_mcnemar_no_discordant_pairs_and_symmetry() -> None:
+    same = metrics.mcnemar([True, False, True], [True, False, True])
+    assert (same.p_exact, same.p_mid) == (1.0, 1.0)
+    a = metrics.mcnemar([1, 1, 0, 0], [0, 0, 1, 1])
+    assert a.p_exact == 1.0 and a.p_mid == pytest.approx(1.0)
+    with pytest.raises(ValueError, match="shape"):
+        metrics.mcnemar([1, 0], [1])
+    with pytest.raises(ValueError, match="0/1"):
+        metrics.mcnemar([2, 0], [1, 0])
+
+
+@given(st.integers(0, 60), st.integers(0, 60), st.integers(0, 30))
+def test_mcnemar_matches_scipy_binomtest(b: int, c: int, same: int) -> None:
+    first = np.r_[np.ones(b), np.zeros(c), np.ones(same)]
+    second = np.r_[np.zeros(b), np.ones(c), np.ones(same)]
+    r = metrics.mcnemar(first, second)
+    if b + c == 0:
+        assert r.p_exact == 1.0
+        return
+    ref = stats.binomtest(min(b, c), b + c, 0.5).pvalue
+    assert r.p_exact == pytest.approx(ref, rel=1e-9, abs=1e-15)
+    k, n = min(b, c), b + c
+    mid = min(1.0, 2 * stats.binom.cdf(k, n, 0.5) - stats.binom.pmf(k, n, 0.5))
+    assert r.p_mid == pytest.approx(mid, rel=1e-9, abs=1e-15)

@@ -160,6 +160,17 @@ def test_replay_command_writes_complete_metrics(ds_session: Path, tmp_path: Path
         assert m["modes"][mode]["n"] == 1
     assert sess["modes"]["manual"]["cosine_distance"] == pytest.approx(0.0, abs=1e-9)
     assert sess["modes"]["manual"]["agreement"] == 1.0
+    # Fig. 8's pairs of divergences, each in [0, 1]; manual's robot is its hand.
+    div = m["divergence"]
+    assert set(div["fig8"]) == {
+        "operator_DS~operator_S",
+        "robot_DS~robot_S",
+        "operator_DS~robot_DS",
+        "operator_S~robot_S",
+    }
+    assert all(0.0 <= v <= 1.0 for v in div["fig8"].values())
+    assert div["operator_vs_robot"]["manual"] < div["operator_vs_robot"]["S"]
+    assert "success_mcnemar" in m["tests"]["S_vs_DS"]
     # One episode a mode: the tests are reported, with their n, as not meaningful.
     assert m["tests"]["S_vs_DS"]["n"] == [1, 1] and not m["tests"]["S_vs_DS"]["meaningful"]
     assert "not meaningful" in r.stderr
@@ -278,7 +289,14 @@ def test_the_real_videos_replay_through_the_whole_system(shared_data: Path, tmp_
         for mode in ("S", "DS"):
             row = s["modes"][mode]
             assert row["arbitrated_ticks"] > 10, (s["name"], mode)
-            assert row["cosine_distance"] is not None and 0 <= row["cosine_distance"] <= 2
+            # The paper's cosine distance is a sum over actions, each in [0, 2]; the mean
+            # per action beside it.
+            assert row["actions"] > 0
+            assert row["cosine_distance"] is not None
+            assert 0 <= row["cosine_distance"] <= 2 * row["actions"]
+            mean = row["cosine_distance_per_action_mean"]
+            assert mean is not None and 0 <= mean <= 2
+            assert mean == pytest.approx(row["cosine_distance"] / row["actions"])
             assert row["agreement"] is not None and 0 <= row["agreement"] <= 1
     for mode in ("S", "DS"):
         assert m["modes"][mode]["n"] == 4

@@ -161,7 +161,9 @@ def test_trace_of_one_trajectory_is_a_session_trace_matching_the_batch(operator:
         U_h, U_o = tr.step.U_human, tr.step.U_out
         assert np.all(np.isfinite(U_h)) and np.all(np.isfinite(U_o))
         agree = np.einsum("td,td->t", U_h, U_o) > 0
-        moving = np.linalg.norm(U_h, axis=-1) > 1e-9
+        # Idle actions (the operator's or the output's norm <= 1e-9) are skipped, as by the
+        # cosine distance.
+        moving = (np.linalg.norm(U_h, axis=-1) > 1e-9) & (np.linalg.norm(U_o, axis=-1) > 1e-9)
         ratio = agree[moving].sum() / moving.sum()
         assert ratio == pytest.approx(res.modes[mode.value].agreement[row], abs=1e-9)
 
@@ -451,3 +453,44 @@ def test_cli_subprocess_bad_argument_no_traceback(tmp_path: Path) -> None:
     # argparse's own errors (not an integer) are one line and exit 2 too.
     proc = sim("many")
     assert proc.returncode == 2 and "invalid int value" in proc.stderr
+
+
+def test_summary_reports_the_papers_metrics_and_labels_the_others() -> None:
+    """Cosine distance as the paper's sum (geometric mean over trajectories), the per-action
+    mean beside it; idle actions skipped alike; censored times counted; Fig. 8's pairs, each
+    mode's hand against its own robot; McNemar for paired success."""
+    from dsteleop.arbitration import metrics
+
+    cfg = sc.SimConfig(trajectories=10, seed=2, modes=(Mode.S, Mode.DS, Mode.MANUAL))
+    res = sc.merge(cfg, [sc.run_chunk(cfg, range(10))])
+    s = sc.summarise(res)
+    for name, r in res.modes.items():
+        m = s["modes"][name]
+        cos = m["cosine_distance"]
+        assert cos["arithmetic_mean"] == pytest.approx(float(r.cosine_sum.mean()))
+        assert cos["per_action_mean"]["mean"] == pytest.approx(float(np.nanmean(r.cosine_mean)))
+        assert "LABELLED" in cos["per_action_mean"]["label"]
+        if name != "manual":
+            gm = float(np.exp(np.mean(np.log(r.cosine_sum))))
+            assert cos["geometric_mean"] == pytest.approx(gm)
+            # A sum over many actions, not a mean in [0, 2].
+            assert cos["geometric_mean"] > 2.0
+        assert cos["skipped_idle"] == int(r.n_idle.sum()) == m["agreement"]["skipped_idle"]
+        t = m["time_s"]
+        assert t["geometric_mean"] == pytest.approx(float(np.exp(np.mean(np.log(r.time_s)))))
+        assert t["arithmetic_mean"] == pytest.approx(float(r.time_s.mean()))
+        assert t["censored"]["gave_up"] == int(r.gave_up.sum())
+        assert t["censored"]["count"] >= t["censored"]["gave_up"]
+    # S parks its robot at its goal: outputs exactly zero there are idle, not disagreements.
+    assert s["modes"]["S"]["cosine_distance"]["skipped_idle"] > 0
+    div = s["divergence"]["fig8"]
+    S, DS = res.modes["S"], res.modes["DS"]
+    assert div["operator_S~robot_S"] == pytest.approx(metrics.js_divergence(S.hand_hist, S.hist))
+    assert div["operator_DS~operator_S"] == pytest.approx(
+        metrics.js_divergence(DS.hand_hist, S.hand_hist)
+    )
+    assert div["robot_DS~robot_S"] == pytest.approx(metrics.js_divergence(DS.hist, S.hist))
+    assert s["divergence"]["operator_vs_robot"]["manual"] == pytest.approx(0.0, abs=1e-12)
+    mc = s["tests"]["S_vs_DS"]["success_mcnemar"]
+    assert mc["first_only"] == int(np.sum(S.success & ~DS.success))
+    assert mc["second_only"] == int(np.sum(~S.success & DS.success))

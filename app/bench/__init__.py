@@ -24,6 +24,7 @@ GROUPS: dict[str, str] = {
     "robot": "dsteleop.app.bench.robot:run",
     "loop": "dsteleop.app.bench.loop:run",
     "tune": "dsteleop.app.bench.tune:run",
+    "sweep": "dsteleop.app.bench.sweep:run",
 }
 
 

@@ -357,6 +357,7 @@ def run(args: argparse.Namespace) -> int:
         "episodes": entries,
         "modes": agg,
         "tests": tests,
+        "divergence": core.divergences(all_traces),
     }
     (out / "metrics.json").write_text(
         json.dumps(core.jsonable(metrics_json), indent=2, allow_nan=False) + "\n"

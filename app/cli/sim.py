@@ -6,8 +6,11 @@
 
 writes DIR/summary.json, DIR/summary.md (shaped like the paper's Table I) and PNG figures
 shaped like Fig. 5b-5d and 6 (`--example K` picks the trajectory of 5c, 5d and 6), and prints
-one JSON object on stdout. The computation is `app/study/core.py` (pure); this module is
-the edge: arguments, progress bar, files. docs/sim.md describes the study and the operator.
+one JSON object on stdout. With `--sweep [AXIS=V1,V2,...]...` it runs every mode over a grid
+of the operator's world instead (`app/study/sweep.py`: Ray tasks on a local cluster or
+`--address`, `--resume`), writing DIR/sweep.json, sweep.md and sweep.png. The computation
+is `app/study/core.py` (pure); this module is the edge: arguments, progress bar, files.
+docs/sim.md describes the study and the operator.
 """
 
 from __future__ import annotations
@@ -48,15 +51,18 @@ class SimCommand:
     workers: int
     figures: bool
     progress: bool | None
+    sweep: Any = None
+    address: str | None = None
+    resume: bool = False
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--trajectories",
         type=int,
-        default=1000,
+        default=None,
         metavar="N",
-        help="number of operator trajectories (default 1000)",
+        help="number of operator trajectories (default 1000; with --sweep 500 per cell)",
     )
     parser.add_argument("--seed", type=int, default=0, help="master seed (default 0)")
     parser.add_argument(
@@ -136,6 +142,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="success heading tolerance delta [rad] (default 0.35)",
     )
     add_config_options(parser)
+    parser.add_argument(
+        "--sweep",
+        nargs="*",
+        default=None,
+        metavar="AXIS=V1,V2,...",
+        help=(
+            "run every mode over a grid of the operator's world: AXIS is goal (goal noise sigma "
+            "[m]), delay [s] or depth (depth error sigma [m]); an axis not given keeps its "
+            "default levels (docs/sim.md). Cells run as Ray tasks; writes sweep.json/md/png"
+        ),
+    )
+    parser.add_argument(
+        "--address",
+        default=None,
+        help="with --sweep: an existing Ray cluster (auto, HOST:PORT or ray://HOST:PORT); "
+        "default: a local cluster of --workers CPUs on 127.0.0.1",
+    )
+    parser.add_argument(
+        "--resume",
+        action="store_true",
+        help="with --sweep: continue the sweep in --out, skipping the cells already there",
+    )
     parser.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     bar = parser.add_mutually_exclusive_group()
     bar.add_argument(
@@ -187,10 +215,30 @@ def command(args: argparse.Namespace) -> SimCommand:
         v = getattr(args, arg)
         if v is not None:
             extra[name] = float(v)
-    if args.trajectories < 1:
-        raise ConfigError(f"--trajectories must be >= 1, got {args.trajectories}")
+    sweep = None
+    if args.sweep is not None:
+        from dsteleop.app.study.sweep import parse_grid
+
+        sweep = parse_grid(args.sweep)
+        if args.address is not None:
+            from dsteleop.app.tune.cluster import parse_address
+
+            parse_address(args.address)
+    elif args.address is not None or args.resume:
+        raise ConfigError("--address and --resume go with --sweep")
+    trajectories = args.trajectories
+    if trajectories is None:
+        trajectories = 500 if sweep is not None else 1000
+    if trajectories < 1:
+        raise ConfigError(f"--trajectories must be >= 1, got {trajectories}")
+    if sweep is not None and trajectories < 2:
+        raise ConfigError(
+            f"--sweep needs --trajectories >= 2 (paired intervals), got {trajectories}"
+        )
+    if sweep is not None and args.workers < 0:
+        raise ConfigError(f"--workers must be >= 0 (0: every core), got {args.workers}")
     study = SimConfig(
-        trajectories=args.trajectories,
+        trajectories=trajectories,
         seed=args.seed,
         operator=args.operator,
         modes=modes,
@@ -201,9 +249,12 @@ def command(args: argparse.Namespace) -> SimCommand:
     return SimCommand(
         study=study,
         out=Path(args.out),
-        workers=workers_for(args.workers, study.trajectories),
+        workers=args.workers if sweep is not None else workers_for(args.workers, trajectories),
         figures=not args.no_figures,
         progress=args.progress,
+        sweep=sweep,
+        address=args.address,
+        resume=bool(args.resume),
     )
 
 
@@ -215,6 +266,20 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = cmd.study
     out = prepare_out_dir(cmd.out)
+    if cmd.sweep is not None:
+        from dsteleop.app.study.sweep import run_command
+
+        show = sys.stderr.isatty() if cmd.progress is None else bool(cmd.progress)
+        return run_command(
+            cfg,
+            cmd.sweep,
+            out,
+            cmd.address,
+            cmd.workers or None,
+            cmd.resume,
+            cmd.figures,
+            show,
+        )
     modes = ",".join(m.value for m in cfg.modes)
     log.info(
         "sim: %d trajectories, operator %s, modes %s, %d worker(s), out %s",

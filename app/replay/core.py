@@ -11,17 +11,26 @@ Metrics per run (paper Section IV-D), over the ticks where the arbitration ran; 
 compared in units of each dimension's velocity limit (U / v_max), so metres, radians and
 openness weigh alike:
 
-    cosine distance  mean over actions of 1 - U_h.U_out / (|U_h| |U_out|)  (zero-norm skipped)
-    agreement        mean over actions of [U_h.U_out > 0]
-    success, time    the task's outcome and its duration [s]
+    cosine distance  the paper's: the SUM over actions of 1 - U_h.U_out / (|U_h| |U_out|);
+                     beside it, labelled, the mean per action
+                     (`cosine_distance_per_action_mean`)
+    agreement        share of actions with U_h.U_out > 0
+    success, time    the task's outcome and its duration [s]; `censored` when the episode
+                     ended without an outcome or by the task's timeout (the time is a bound)
     mean_alpha       per dimension
 
+Both action metrics skip the same idle actions (`metrics.idle_actions`: the operator's or the
+output's action at most 1e-9 of the velocity limits), counted in `skipped_idle`.
+
 A session holds episodes (one attempt at the task each, `session.episodes`); each replays on
-its own, from its own reset. Across episodes: success rate (Laplace, adjusted-Wald CI),
-geometric-mean time (CI), and the paper's tests between modes (N-1 chi-squared on success,
-t-tests on log time and on the per-episode cosine distance and agreement), over the episodes
-that ended with an outcome, each test with its n and flagged as not meaningful under
-`MIN_EPISODES` a mode.
+its own, from its own reset. Across episodes, as the paper's Table I: success rate (Laplace,
+adjusted-Wald CI), geometric means of time, cosine distance and agreement (CI of the log
+mean; arithmetic means beside them, labelled), the censored times counted; and the paper's
+tests between modes (N-1 chi-squared and McNemar's paired test on success, t-tests on log
+time and on the per-episode cosine distance and agreement), over the episodes that ended
+with an outcome, each test with its n and flagged as not meaningful under `MIN_EPISODES` a
+mode. `divergences` gives Fig. 8's Jensen-Shannon divergences of the hand's and the robot's
+(x, y, z) positions per mode.
 """
 
 from __future__ import annotations
@@ -136,14 +145,28 @@ def as_recorded(session: Session) -> Trace:
 # --- metrics --------------------------------------------------------------------------------
 
 
-def action_metrics(trace: Trace) -> dict[str, float | None]:
-    """Cosine distance and agreement over the arbitrated ticks, in v_max units."""
+def action_metrics(trace: Trace) -> dict[str, float | int | None]:
+    """Cosine distance (the paper's sum; the mean per action beside it) and agreement over
+    the arbitrated ticks, in v_max units, both skipping the same idle actions."""
     m = trace.arbitrated
     U_h = trace.step.U_human[m] / trace.v_max
     U_o = trace.step.U_out[m] / trace.v_max
-    cos = metrics.cosine_distance(U_h, U_o)
-    agree = metrics.agreement(U_h, U_o)
-    return {"cosine_distance": num(cos.mean), "agreement": num(agree.ratio)}
+    p = metrics.ActionProducts.of(U_h, U_o)
+    cos = metrics.summarise_cosines(metrics.cosine_distances(p))
+    agree = metrics.agreement_of(p)
+    return {
+        "cosine_distance": num(cos.total) if int(cos.n_actions) > 0 else None,
+        "cosine_distance_per_action_mean": num(cos.mean),
+        "agreement": num(agree.ratio),
+        "actions": int(cos.n_actions),
+        "skipped_idle": int(cos.n_skipped),
+    }
+
+
+def is_censored(trace: Trace) -> bool:
+    """The run's time is a bound, not a completion time: it ended without an outcome, or by
+    the task's timeout."""
+    return trace.outcome is None or trace.outcome.reason == "timeout"
 
 
 def num(x: Any) -> float | None:
@@ -212,6 +235,7 @@ def session_summary(name: str, recorded_s: float, traces: Sequence[Trace]) -> di
             "success": tr.success,
             "outcome": tr.outcome_name,
             "time_s": round(tr.time_s, 4),
+            "censored": is_censored(tr),
             **action_metrics(tr),
             "mean_alpha": mean_alpha,
             "arbitrated_ticks": int(tr.arbitrated.sum()),
@@ -237,13 +261,29 @@ def aggregate(
         per[mode] = {"success": [float(x) for x in succ], "time": times, "cos": cos, "agr": agr}
         sr = metrics.success_rate(sum(succ), len(succ)) if succ else None
         gt = metrics.geometric_mean(times) if len(times) >= 1 else None
+        per_action = [
+            r["cosine_distance_per_action_mean"]
+            for r in rows
+            if r.get("cosine_distance_per_action_mean") is not None
+        ]
+        cen = sum(bool(r.get("censored", False)) for r in rows)
+        gc, ga = _geometric(cos), _geometric(agr)
         agg[mode] = {
             "n": len(rows),
             "excluded": sum(1 for e in entries if mode in e["modes"]) - len(rows),
             "success_rate": None if sr is None else jsonable(sr),
             "time_s": None if gt is None else jsonable(gt),
-            "cosine_distance": num(np.mean(cos)) if cos else None,
-            "agreement": num(np.mean(agr)) if agr else None,
+            "time_s_arithmetic_mean": num(np.mean(times)) if times else None,
+            "censored": {"count": cen, "share": cen / len(rows) if rows else None},
+            # The paper's Table I: geometric means over episodes (None when a value is <= 0).
+            "cosine_distance": None if gc is None else gc.mean,
+            "cosine_distance_ci95": None if gc is None else [gc.ci_low, gc.ci_high],
+            "cosine_distance_arithmetic_mean": num(np.mean(cos)) if cos else None,
+            "cosine_distance_per_action_mean": num(np.mean(per_action)) if per_action else None,
+            "agreement": None if ga is None else ga.mean,
+            "agreement_ci95": None if ga is None else [ga.ci_low, ga.ci_high],
+            "agreement_arithmetic_mean": num(np.mean(agr)) if agr else None,
+            "skipped_idle": sum(int(r.get("skipped_idle", 0)) for r in rows),
         }
     tests: dict[str, Any] = {}
     for i, a in enumerate(modes):
@@ -256,6 +296,14 @@ def aggregate(
                     f"{a} vs {b}: n = {na} and {nb} episodes; fewer than {MIN_EPISODES} a "
                     "mode: the tests below are not meaningful"
                 )
+            both = [
+                (bool(e["modes"][a]["success"]), bool(e["modes"][b]["success"]))
+                for e in counted
+                if a in e["modes"] and b in e["modes"]
+            ]
+            if both:
+                first, second = zip(*both, strict=True)
+                entry["success_mcnemar"] = jsonable(metrics.mcnemar(first, second))
             if pa["success"] and pb["success"]:
                 entry["success_n1_chi2"] = jsonable(
                     metrics.n1_chi_squared(
@@ -280,6 +328,48 @@ def aggregate(
                     entry[name] = jsonable(metrics.t_test(ya, yb))
             tests[f"{a}_vs_{b}"] = entry
     return agg, tests
+
+
+def _geometric(x: Sequence[float]) -> metrics.GeometricMean | None:
+    """The geometric mean of `x` with its interval; None when empty or a value is <= 0."""
+    if not x or min(x) <= 0:
+        return None
+    return metrics.geometric_mean(x)
+
+
+#: Bins per axis of the Fig. 8 histograms of replays (x, y, z positions).
+FIG8_BINS = 16
+
+
+def divergences(traces: Sequence[Trace]) -> dict[str, Any]:
+    """Fig. 8's Jensen-Shannon divergences over replays: per mode, a histogram of the hand's
+    and one of the robot's (x, y, z) positions over the arbitrated ticks of every run in that
+    mode (`FIG8_BINS` per axis over the box holding every point), then the paper's pairs
+    (`app.study.core.fig8_divergences`)."""
+    from dsteleop.app.study.core import fig8_divergences
+
+    pts: dict[str, tuple[list[Array], list[Array]]] = {}
+    for tr in traces:
+        h, r = pts.setdefault(tr.mode.value, ([], []))
+        h.append(tr.p_human[tr.arbitrated])
+        r.append(tr.p_robot[tr.arbitrated])
+    every = [p for h, r in pts.values() for p in (*h, *r) if p.size]
+    every = [p[np.isfinite(p).all(-1)] for p in every]
+    every = [p for p in every if p.size]
+    if not every:
+        return fig8_divergences({}, {})
+    allp = np.concatenate(every)
+    lo, hi = allp.min(0), allp.max(0)
+    ranges = np.stack([lo, np.maximum(hi, lo + 1e-6)], -1)
+
+    def hist(parts: list[Array]) -> NDArray[np.int64]:
+        if not parts:
+            return np.zeros((FIG8_BINS,) * 3, dtype=np.int64)
+        return metrics.trajectory_histogram(np.concatenate(parts), FIG8_BINS, ranges)
+
+    return fig8_divergences(
+        {m: hist(h) for m, (h, _) in pts.items()}, {m: hist(r) for m, (_, r) in pts.items()}
+    )
 
 
 def test_notes(tests: dict[str, Any]) -> list[str]:

@@ -38,10 +38,15 @@ operator (it decides when it is done); for an open-loop one, the time from which
 stays in the success region to the end (its settling time), or the whole trial on failure.
 
 Per trajectory the metrics of Section IV-D (dsteleop.arbitration.metrics) are taken over the
-actions of the trial: cosine distance (mean per action) and ratio of agreement of U_human vs
-U_out; the paper's literal definitions in the arbitration's units (m/s, rad/s) are the
-headline, and `metric_variants` adds actions over the velocity limits, per group, by phase and
-a labelled dead-band variant.
+actions of the trial: cosine distance (the paper's sum over actions, the mean per action
+beside it) and ratio of agreement of U_human vs U_out, both skipping the same idle actions
+(`metrics.idle_actions`); the paper's definitions in the arbitration's units (m/s, rad/s) are
+the headline, and `metric_variants` adds actions over the velocity limits, per group, by
+phase and a labelled dead-band variant. Over trajectories, as the paper's Table I: success
+as a Laplace estimate, time, cosine distance and agreement as geometric means (arithmetic
+means beside them, labelled); censored times (the operator gave up, the time limit, an
+open-loop trial that never settled) are counted. `divergence` holds the Jensen-Shannon
+divergences of Fig. 8's pairs.
 """
 
 from __future__ import annotations
@@ -168,6 +173,8 @@ class SimConfig:
         max_paths: trajectories whose paths are kept for the distribution figure.
         arbitration: arbitration hyper-parameters.
         strategy: operator strategy; None gives planar_strategy(arbitration).
+        world: the operator's impairments (`app.operator.world`), swept by `dsteleop sim
+            --sweep`.
     """
 
     trajectories: int = 1000
@@ -196,6 +203,7 @@ class SimConfig:
     max_paths: int = 200
     arbitration: ArbitrationConfig = field(default_factory=ArbitrationConfig)
     strategy: OperatorStrategy | None = None
+    world: Impairments = field(default_factory=Impairments)
 
     def __post_init__(self) -> None:
         if isinstance(self.trajectories, bool) or not isinstance(self.trajectories, int):
@@ -275,7 +283,7 @@ class SimConfig:
             v = getattr(self, f.name)
             if f.name == "modes":
                 v = [m.value for m in v]
-            elif f.name == "arbitration":
+            elif f.name in ("arbitration", "world"):
                 v = v.to_dict()
             elif f.name == "strategy":
                 v = _jsonable(dataclasses.asdict(self.operator_strategy))
@@ -511,6 +519,7 @@ class ModeResult:
     y_only: Array  # (N, 3) sum |U_out_x|, sum |U_out_y|, actions while the operator moves y only
     lengths: NDArray[np.int64]  # (N,) states of each trial (closed loop: mode-dependent)
     gave_up: NDArray[np.bool_]  # (N,) the closed-loop operator gave up (False for open loop)
+    n_idle: NDArray[np.int64]  # (N,) idle actions, skipped by both cosine distance and agreement
     hand_hist: NDArray[np.int64]  # the hand's (x, y, heading) histogram in this mode
     hand_paths: Array  # (P, T', 3) the hand's paths of the first trajectories
     variants: dict[str, Array]  # per-trajectory metric variants (`metric_variants`)
@@ -1028,13 +1037,12 @@ def _mode_result(
     k = np.arange(T - 1)[None, :]
     phase = k / (lengths[:, None] - 1)
     b = np.clip(np.searchsorted(PHASE_EDGES, phase, side="right") - 1, 0, n_bins - 1)
-    counted = acted & ~np.isnan(c)
-    moving = acted & (lit.hh > 1e-18)
-    agrees = moving & (lit.dot > 0.0)
+    counted = acted & ~np.isnan(c)  # the actions both metrics count (not idle)
+    agrees = counted & (lit.dot > 0.0)
     # Per trajectory (N, 2, bins), so pooled sums do not depend on how rows were chunked.
     cos_bins = _bin_sum(b, np.where(counted, c, 0.0), n_bins)
     ph_cos = np.stack([cos_bins, _bin_sum(b, counted, n_bins)], 1)
-    ph_ag = np.stack([_bin_sum(b, agrees, n_bins), _bin_sum(b, moving, n_bins)], 1)
+    ph_ag = np.stack([_bin_sum(b, agrees, n_bins), _bin_sum(b, counted, n_bins)], 1)
     # Operator moving along y only (|v_x| < 0.1 |v_y|, |v_y| > 0.02 m/s): how much x does the
     # output add (the paper's Fig. 5 narrative)?
     vx, vy = np.abs(U_h_all[..., 0]), np.abs(U_h_all[..., 1])
@@ -1082,6 +1090,7 @@ def _mode_result(
         y_only=cross,
         lengths=lengths,
         gave_up=gave_up,
+        n_idle=cos.n_skipped,
         hand_hist=metrics.trajectory_histogram(hand[hand_valid], HIST_BINS, ranges),
         hand_paths=_paths(hand[:n_paths], lengths[:n_paths]),
         variants=_variants(cfg, U_h_all, U_out_all, acted, lit, c),
@@ -1233,7 +1242,6 @@ def summarise(res: StudyResult, figures: StudyResult | None = None) -> dict[str,
     modes: dict[str, Any] = {}
     for name, r in res.modes.items():
         sr = metrics.success_rate(int(r.success.sum()), int(r.success.size))
-        gm = metrics.geometric_mean(r.time_s)
         modes[name] = {
             "n": int(r.success.size),
             "success_rate": {
@@ -1242,13 +1250,15 @@ def summarise(res: StudyResult, figures: StudyResult | None = None) -> dict[str,
                 "successes": sr.successes,
                 "n": sr.n,
             },
-            "time_s": {"geometric_mean": gm.mean, "ci95": [gm.ci_low, gm.ci_high]},
+            "time_s": {**geometric(r.time_s), "censored": censoring(cfg, r)},
             "cosine_distance": {
-                **_mean_ci(r.cosine_mean),
-                "mean_sum_per_trajectory": float(r.cosine_sum.mean()),
+                "definition": COSINE_DEFINITION,
+                **geometric(r.cosine_sum),
+                "per_action_mean": {"label": PER_ACTION_LABEL, **_mean_ci(r.cosine_mean)},
                 "actions": int(r.n_actions.sum()),
+                "skipped_idle": int(r.n_idle.sum()),
             },
-            "agreement": _mean_ci(r.agreement),
+            "agreement": {**geometric(r.agreement), "skipped_idle": int(r.n_idle.sum())},
             "by_phase": {
                 "edges": PHASE_EDGES.tolist(),
                 "cosine_distance": _ratio(*r.phase_cos.sum(0)),
@@ -1270,7 +1280,10 @@ def summarise(res: StudyResult, figures: StudyResult | None = None) -> dict[str,
         "runs": cfg.runs,
         "modes": modes,
         "tests": {},
-        "divergence": _divergences(res),
+        "divergence": fig8_divergences(
+            {k: v.hand_hist for k, v in res.modes.items()},
+            {k: v.hist for k, v in res.modes.items()},
+        ),
         "operator": {
             "kind": cfg.operator,
             "closed_loop": cfg.closed_loop,
@@ -1297,6 +1310,106 @@ def _run_summary(r: ModeResult, rows: NDArray[np.bool_]) -> dict[str, float]:
         "committed_share": float(r.committed[rows].mean()),
         "gave_up_share": float(r.gave_up[rows].mean()),
         "history_term_l1": float(r.history_norm[rows].mean()),
+    }
+
+
+COSINE_DEFINITION = (
+    "the paper's: per trajectory, the SUM over its actions of 1 - U_h.U_out / (|U_h||U_out|), "
+    "idle actions (|U_h| or |U_out| <= 1e-9) skipped; over trajectories its geometric mean"
+)
+PER_ACTION_LABEL = (
+    "LABELLED VARIANT: per trajectory the mean per counted action (the sum divided by the "
+    "actions), mean over trajectories; not the paper's definition"
+)
+
+
+def geometric(x: Array) -> dict[str, Any]:
+    """Over trajectories, as the paper's Table I: the geometric mean of positive values with
+    the 95 % interval of the log mean (None when a value is <= 0: `nonpositive` counts them),
+    and beside it, labelled, the arithmetic mean with its t interval."""
+    x = x[np.isfinite(x)]
+    nonpositive = int(np.count_nonzero(x <= 0))
+    gm = metrics.geometric_mean(x) if x.size and nonpositive == 0 else None
+    ar = _mean_ci(x)
+    return {
+        "geometric_mean": None if gm is None else gm.mean,
+        "ci95": [None, None] if gm is None else [gm.ci_low, gm.ci_high],
+        "n": int(x.size),
+        "nonpositive": nonpositive,
+        "arithmetic_mean": ar["mean"],
+        "arithmetic_ci95": ar["ci95"],
+    }
+
+
+def censored(cfg: SimConfig, r: ModeResult) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """Per trajectory, whether its time is censored: (gave up, ran to the limit). Closed
+    loop: the operator gave up (its patience), or the trial ran to `max_trial_s`; open loop:
+    a failed trial, whose time is the trial's end rather than a settling time."""
+    if not cfg.closed_loop:
+        return np.zeros_like(r.success), ~r.success
+    limit = round(cfg.max_trial_s / cfg.dt_s) + 1
+    return r.gave_up.copy(), (r.lengths >= limit) & ~r.gave_up
+
+
+def censoring(cfg: SimConfig, r: ModeResult) -> dict[str, Any]:
+    """Counts and share of the censored times of one mode (`censored`)."""
+    gave_up, limit = censored(cfg, r)
+    n = int(r.success.size)
+    count = int(np.count_nonzero(gave_up | limit))
+    return {
+        "count": count,
+        "share": count / n if n else None,
+        "gave_up": int(gave_up.sum()),
+        "time_limit": int(limit.sum()),
+        "about": (
+            "the operator gave up (patience) or the trial ran to the time limit: the time is a "
+            "lower bound"
+            if cfg.closed_loop
+            else "open loop: a failed trial never settled; its time is the trial's end"
+        ),
+    }
+
+
+#: The paper's Fig. 8 divergences (its human study; x, y, z positions), for reference.
+PAPER_FIG8 = {
+    "operator_DS~operator_S": 0.1293,
+    "robot_DS~robot_S": 0.1896,
+    "operator_DS~robot_DS": 0.2905,
+    "operator_S~robot_S": 0.3017,
+}
+
+
+def fig8_divergences(
+    operator: dict[str, NDArray[np.int64]], robot: dict[str, NDArray[np.int64]]
+) -> dict[str, Any]:
+    """Jensen-Shannon divergences (base 2) of Fig. 8's pairs of trajectory histograms, each
+    mode's own: the operator (hand) under DS vs under S, the robot under DS vs under S, and
+    the operator vs the robot of every mode. Pairs with an empty histogram are left out.
+
+    Args:
+        operator: per mode, the histogram of the operator's hand over that mode's trials.
+        robot: per mode, the robot's histogram (same bins).
+    """
+
+    def jsd(a: NDArray[np.int64], b: NDArray[np.int64]) -> float | None:
+        return metrics.js_divergence(a, b) if a.sum() > 0 and b.sum() > 0 else None
+
+    pairs: dict[str, float | None] = {}
+    if "S" in operator and "DS" in operator:
+        pairs["operator_DS~operator_S"] = jsd(operator["DS"], operator["S"])
+        pairs["robot_DS~robot_S"] = jsd(robot["DS"], robot["S"])
+    per_mode = {m: jsd(operator[m], robot[m]) for m in operator}
+    for m in ("DS", "S"):
+        if m in per_mode:
+            pairs[f"operator_{m}~robot_{m}"] = per_mode[m]
+    return {
+        "about": (
+            "Fig. 8: Jensen-Shannon divergence (base 2, in [0, 1]) between histograms of "
+            "trajectory points, each of the operator or the robot under one mode"
+        ),
+        "fig8": pairs,
+        "operator_vs_robot": per_mode,
+        "paper_fig8": PAPER_FIG8,
     }
 
 
@@ -1372,13 +1485,15 @@ def compare(a: ModeResult, b: ModeResult) -> dict[str, Any]:
     return {
         "statistics_are": "first minus second mode",
         "success_n1_chi2": dataclasses.asdict(chi),
+        "success_mcnemar": dataclasses.asdict(metrics.mcnemar(a.success, b.success)),
         "log_time": {
             "two_sample_t": dataclasses.asdict(metrics.log_t_test(a.time_s, b.time_s)),
             "paired_t": dataclasses.asdict(
                 metrics.paired_t_test(np.log(a.time_s), np.log(b.time_s))
             ),
         },
-        "cosine_distance": both(a.cosine_mean, b.cosine_mean),
+        "cosine_distance": both(a.cosine_sum, b.cosine_sum),
+        "cosine_distance_per_action_mean": both(a.cosine_mean, b.cosine_mean),
         "agreement": both(a.agreement, b.agreement),
         "x_per_y_while_operator_moves_y_only": both(x_per_y(a), x_per_y(b)),
     }
@@ -1395,17 +1510,6 @@ def x_per_y(r: ModeResult) -> Array:
 
 def _safe_ratio(a: float, b: float) -> float | None:
     return float(a / b) if b > 0 else None
-
-
-def _divergences(res: StudyResult) -> dict[str, float]:
-    hists = {"operator": res.operator_hist, **{k: v.hist for k, v in res.modes.items()}}
-    names = list(hists)
-    out = {}
-    for i, a in enumerate(names):
-        for b in names[i + 1 :]:
-            if hists[a].sum() > 0 and hists[b].sum() > 0:
-                out[f"{a}~{b}"] = metrics.js_divergence(hists[a], hists[b])
-    return out
 
 
 def _ratio(num: Array, den: Array) -> list[float | None]:

@@ -17,8 +17,10 @@ def brief(
         name: {
             "success_rate": m["success_rate"]["estimate"],
             "time_s": m["time_s"]["geometric_mean"],
-            "cosine_distance": m["cosine_distance"]["mean"],
-            "agreement": m["agreement"]["mean"],
+            "time_censored_share": m["time_s"]["censored"]["share"],
+            "cosine_distance": m["cosine_distance"]["geometric_mean"],
+            "cosine_distance_per_action_mean": m["cosine_distance"]["per_action_mean"]["mean"],
+            "agreement": m["agreement"]["geometric_mean"],
         }
         for name, m in summary["modes"].items()
     }
@@ -27,6 +29,7 @@ def brief(
     if tests:
         p = {
             "success": tests["success_n1_chi2"]["p_value"],
+            "success_mcnemar_mid_p": tests["success_mcnemar"]["p_mid"],
             "log_time": tests["log_time"]["two_sample_t"]["p_value"],
             "cosine_distance": tests["cosine_distance"]["two_sample_t"]["p_value"],
             "agreement": tests["agreement"]["two_sample_t"]["p_value"],
@@ -70,10 +73,18 @@ def markdown(summary: dict[str, Any]) -> str:
         for key, test, metric, stat, lower in (
             ("success", tests["success_n1_chi2"], "success_rate", "estimate", False),
             ("time", tests["log_time"]["two_sample_t"], "time_s", "geometric_mean", True),
-            ("cos", tests["cosine_distance"]["two_sample_t"], "cosine_distance", "mean", True),
-            ("agree", tests["agreement"]["two_sample_t"], "agreement", "mean", False),
+            (
+                "cos",
+                tests["cosine_distance"]["two_sample_t"],
+                "cosine_distance",
+                "geometric_mean",
+                True,
+            ),
+            ("agree", tests["agreement"]["two_sample_t"], "agreement", "geometric_mean", False),
         ):
-            pick(key, test["p_value"], m["S"][metric][stat], m["DS"][metric][stat], lower)
+            s_val, ds_val = m["S"][metric][stat], m["DS"][metric][stat]
+            if s_val is not None and ds_val is not None:
+                pick(key, test["p_value"], s_val, ds_val, lower)
 
     def cell(
         key: str, mode: str, est: float | None, ci: Sequence[float | None], digits: int
@@ -105,9 +116,13 @@ def markdown(summary: dict[str, Any]) -> str:
         "",
         about,
         "",
-        "Means and 95 % confidence intervals (success: Laplace estimate, adjusted-Wald; time: "
-        "geometric mean; cosine distance and agreement: mean of the per-trajectory values, t "
-        "interval), the paper's literal definitions. Bold: better of S and DS with p < 0.05.",
+        "The paper's definitions and statistics (Section IV-D, Table I), with 95 % confidence "
+        "intervals: success as a Laplace estimate with the adjusted-Wald interval; trial time, "
+        "cosine distance and ratio of agreement as geometric means over trajectories with the "
+        "interval of the log mean. The cosine distance of a trajectory is the paper's SUM over "
+        "its actions (not a mean per action: that is beside it below, labelled). Both action "
+        "metrics skip the same idle actions (|U_h| or |U_out| <= 1e-9: no direction). "
+        "n/a: a value <= 0 leaves no geometric mean. Bold: better of S and DS with p < 0.05.",
         "",
         "| Mode | Success Rate | Trial Time (s) | Cosine Distance | Ratio of Agreement |",
         "| --- | --- | --- | --- | --- |",
@@ -122,12 +137,42 @@ def markdown(summary: dict[str, Any]) -> str:
                     ),
                     cell("time", name, m["time_s"]["geometric_mean"], m["time_s"]["ci95"], 2),
                     cell(
-                        "cos", name, m["cosine_distance"]["mean"], m["cosine_distance"]["ci95"], 3
+                        "cos",
+                        name,
+                        m["cosine_distance"]["geometric_mean"],
+                        m["cosine_distance"]["ci95"],
+                        2,
                     ),
-                    cell("agree", name, m["agreement"]["mean"], m["agreement"]["ci95"], 3),
+                    cell(
+                        "agree", name, m["agreement"]["geometric_mean"], m["agreement"]["ci95"], 3
+                    ),
                 ]
             )
             + " |"
+        )
+    lines += [
+        "",
+        "Beside the paper's statistics, labelled: arithmetic means (time, cosine distance sum, "
+        "agreement), the cosine distance as a mean per action, the idle actions both metrics "
+        "skipped, and the censored times ("
+        + next(iter(summary["modes"].values()))["time_s"]["censored"]["about"]
+        + ").",
+        "",
+        "| Mode | Time, arithmetic (s) | Censored times | Cosine distance sum, arithmetic "
+        "| Cosine distance per action (labelled) | Agreement, arithmetic | Idle actions skipped |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for name, m in summary["modes"].items():
+        t, c, a = m["time_s"], m["cosine_distance"], m["agreement"]
+        cen = t["censored"]
+        share = "n/a" if cen["share"] is None else f"{cen['share']:.1%}"
+        lines.append(
+            f"| {name} | {_mean(t['arithmetic_mean'], t['arithmetic_ci95'], 2)} | "
+            f"{cen['count']} of {t['n']} ({share}) | "
+            f"{_mean(c['arithmetic_mean'], c['arithmetic_ci95'], 2)} | "
+            f"{_mean(c['per_action_mean']['mean'], c['per_action_mean']['ci95'], 3)} | "
+            f"{_mean(a['arithmetic_mean'], a['arithmetic_ci95'], 3)} | "
+            f"{c['skipped_idle']} of {c['skipped_idle'] + c['actions']} |"
         )
     if op["closed_loop"]:
         ended = ", ".join(
@@ -148,10 +193,12 @@ def markdown(summary: dict[str, Any]) -> str:
             "| --- | --- | --- | --- |",
             "| success | N-1 chi-squared | "
             f"{tests['success_n1_chi2']['chi2']:.3f} | {_p(tests['success_n1_chi2']['p_value'])} |",
+            _mcnemar_row(tests["success_mcnemar"]),
         ]
         for key, label in (
             ("log_time", "log time"),
-            ("cosine_distance", "cosine distance"),
+            ("cosine_distance", "cosine distance (sum)"),
+            ("cosine_distance_per_action_mean", "cosine distance per action (labelled)"),
             ("agreement", "agreement"),
         ):
             for test, tlabel in (("two_sample_t", "two-sample t"), ("paired_t", "paired t")):
@@ -168,9 +215,7 @@ def markdown(summary: dict[str, Any]) -> str:
         for key, label in (("cosine_distance", "cosine"), ("agreement", "agreement")):
             vals = " | ".join("n/a" if v is None else f"{v:.3f}" for v in m["by_phase"][key])
             lines.append(f"| {name} | {label} | {vals} |")
-    lines += ["", "## Jensen-Shannon divergence of (x, y, heading) histograms (base 2)", ""]
-    lines += ["| Pair | JSD |", "| --- | --- |"]
-    lines += [f"| {k} | {v:.4f} |" for k, v in summary["divergence"].items()]
+    lines += divergence_section(summary["divergence"], "(x, y, heading)")
     c = summary["config"]
     lines += [
         "",
@@ -253,6 +298,49 @@ def _fig5_section(fig: dict[str, Any]) -> list[str]:
     lines.append("")
     lines.append("The figures fig5b-d and fig6 are drawn from this operator.")
     return lines
+
+
+def divergence_section(div: dict[str, Any], space: str) -> list[str]:
+    """The Fig. 8 divergences as a markdown section (`core.fig8_divergences`)."""
+    lines = [
+        "",
+        f"## Fig. 8: Jensen-Shannon divergences of {space} histograms (base 2)",
+        "",
+        "Each histogram holds the trajectory points of the operator (hand) or of the robot "
+        "under one mode, as the paper's Fig. 8 (a) operator DS, (b) operator S, (c) robot DS, "
+        "(d) robot S. The paper's values come from its human study (x, y, z), for reference.",
+        "",
+        "| Pair | JSD | paper |",
+        "| --- | --- | --- |",
+    ]
+    paper = div.get("paper_fig8", {})
+    for k, v in div["fig8"].items():
+        ref = paper.get(k)
+        lines.append(
+            f"| {k} | {'n/a' if v is None else f'{v:.4f}'} | "
+            f"{'' if ref is None else f'{ref:.4f}'} |"
+        )
+    lines += ["", "Operator vs robot, every mode:", ""]
+    lines += [
+        f"- {m}: {'n/a' if v is None else f'{v:.4f}'}" for m, v in div["operator_vs_robot"].items()
+    ]
+    return lines
+
+
+def _mcnemar_row(t: dict[str, Any]) -> str:
+    return (
+        f"| success | McNemar (paired; {t['first_only']} S only, {t['second_only']} DS only) "
+        f"| exact p {_p(t['p_exact'])} | mid-p {_p(t['p_mid'])} |"
+    )
+
+
+def _mean(m: float | None, ci: Sequence[float | None], digits: int) -> str:
+    if m is None:
+        return "n/a"
+    lo, hi = ci
+    if lo is None or hi is None:
+        return f"{m:.{digits}f}"
+    return f"{m:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
 
 
 def _p(p: float) -> str:

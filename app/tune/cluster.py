@@ -163,14 +163,19 @@ class RayExecutor:
             "# written by dsteleop tune for its local Ray cluster\nprovider:\n  type: local\n"
         )
         before = os.environ.get("HOME")
+        # The workers keep the user's cache folder (where the compiled arbitration kernels
+        # are, arbitration/jit.py): without it each worker would compile them again.
+        cache_before = os.environ.get("XDG_CACHE_HOME")
+        os.environ["XDG_CACHE_HOME"] = cache_before or str(Path.home() / ".cache")
         os.environ["HOME"] = self._home.name
         try:
             yield
         finally:
-            if before is None:
-                del os.environ["HOME"]
-            else:
-                os.environ["HOME"] = before
+            for name, value in (("HOME", before), ("XDG_CACHE_HOME", cache_before)):
+                if value is None:
+                    os.environ.pop(name, None)
+                else:
+                    os.environ[name] = value
 
     def __enter__(self) -> RayExecutor:
         return self

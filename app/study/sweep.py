@@ -1,0 +1,572 @@
+"""A map of where assistance helps: every mode of the study over a grid of the operator's
+world (`dsteleop sim --sweep`, docs/sim.md).
+
+A cell is one world, `Impairments` with goal noise `goal_sigma_m`, teleoperation delay
+`delay_s` and single-view depth error `depth_sigma_m` set (the rest as configured). In each
+cell every mode of the study (`SimConfig.modes`) runs on the same trajectories 0 .. N-1 of the
+same seed, so the modes of a cell are paired, exactly as in one `dsteleop sim` run (a cell is
+`core.run_chunk` over its trajectories, in chunks of `CHUNK` for memory). Per cell, with the
+paper's statistics (`dsteleop.arbitration.metrics`):
+
+    per mode       success (Laplace estimate, adjusted-Wald 95 % CI), time (geometric mean,
+                   95 % CI of the log mean), the share of censored times
+    best mode      the highest success count; ties: the shorter geometric-mean time
+    best scalar    the best (same rule) of the single-alpha modes present (`SCALAR_MODES`:
+                   S and the tuned scalar baseline `scalar`)
+    DS - scalar    the mean paired difference of success (DS minus the best scalar, per
+                   trajectory) with its 95 % t interval; McNemar's exact and mid-p tests on
+                   the paired outcomes; the N-1 chi-squared test; the ratio of geometric-mean
+                   times with the paired t interval of the log difference
+    verdict        `DS wins` / `DS loses` where McNemar's exact p < 0.05 (the sign of the
+                   difference), otherwise `tie`
+
+Cells run as Ray tasks (`app.tune.cluster.RayExecutor`: a local cluster on 127.0.0.1, or an
+existing one at `--address`); each finished cell is written at once to DIR/cells/<cell>.json
+(with the settings that define it), so a stopped sweep resumes where it was (`--resume`
+skips the cells whose file is there with the same settings). Nothing of the computation
+depends on which worker ran a cell or in what order.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from dsteleop.app.operator.world import Impairments
+from dsteleop.app.study import core
+from dsteleop.arbitration import metrics
+from dsteleop.errors import ConfigError, InputError
+
+SCHEMA = "dsteleop.sim_sweep/1"
+#: Trajectories per batch inside a cell (a batch of 500 x 5 modes of 60 s trials needs ~1 GB).
+CHUNK = 250
+#: The grid's axes: name on the command line -> field of `Impairments` [unit].
+AXES: dict[str, str] = {"goal": "goal_sigma_m", "delay": "delay_s", "depth": "depth_sigma_m"}
+#: Levels above 0 of an axis whose default is 0 (no literature value set yet): goal noise
+#: [m], delay [s], depth error [m]. An axis with a default d > 0 has the levels 0, d, 2 d.
+FALLBACK_LEVELS: dict[str, tuple[float, float]] = {
+    "goal": (0.02, 0.04),
+    "delay": (0.15, 0.30),
+    "depth": (0.01, 0.02),
+}
+#: The single-alpha modes (one authority for every dimension): "best scalar" is the best of
+#: those present.
+SCALAR_MODES: tuple[str, ...] = ("S", "scalar")
+ALPHA = 0.05
+
+
+@dataclass(frozen=True)
+class Grid:
+    """The levels of each axis (`AXES`); the cells are their product, goal-major."""
+
+    levels: dict[str, tuple[float, ...]]
+
+    def cells(self) -> list[tuple[float, ...]]:
+        """Every (goal, delay, depth) of the grid."""
+        out: list[tuple[float, ...]] = [()]
+        for axis in AXES:
+            out = [(*c, v) for c in out for v in self.levels[axis]]
+        return out
+
+    def to_dict(self) -> dict[str, list[float]]:
+        return {axis: list(self.levels[axis]) for axis in AXES}
+
+
+def default_levels(axis: str) -> tuple[float, ...]:
+    """0, the default d of `Impairments` and 2 d; 0 and `FALLBACK_LEVELS` when d is 0."""
+    d = float(getattr(Impairments(), AXES[axis]))
+    return (0.0, d, 2.0 * d) if d > 0 else (0.0, *FALLBACK_LEVELS[axis])
+
+
+def default_grid() -> Grid:
+    return Grid({axis: default_levels(axis) for axis in AXES})
+
+
+def parse_grid(specs: Sequence[str]) -> Grid:
+    """A grid from `AXIS=V1,V2,...` specs; an axis not given keeps its default levels.
+
+    Raises:
+        ConfigError: an unknown or repeated axis, a value that is not a finite number >= 0,
+            no value, or a repeated value (one line).
+    """
+    levels = {axis: default_levels(axis) for axis in AXES}
+    seen: set[str] = set()
+    for spec in specs:
+        axis, sep, values = spec.partition("=")
+        axis = axis.strip()
+        if not sep or axis not in AXES:
+            raise ConfigError(
+                f"--sweep {spec!r}: expected AXIS=V1,V2,... with AXIS one of {', '.join(AXES)}"
+            )
+        if axis in seen:
+            raise ConfigError(f"--sweep: axis {axis!r} given twice")
+        seen.add(axis)
+        out: list[float] = []
+        for text in values.split(","):
+            try:
+                v = float(text)
+            except ValueError:
+                raise ConfigError(f"--sweep {spec!r}: {text.strip()!r} is not a number") from None
+            if not (math.isfinite(v) and v >= 0):
+                raise ConfigError(f"--sweep {spec!r}: levels must be finite and >= 0, got {v}")
+            if v in out:
+                raise ConfigError(f"--sweep {spec!r}: level {v:g} given twice")
+            out.append(v)
+        levels[axis] = tuple(out)
+    return Grid(levels)
+
+
+def cell_name(cell: Sequence[float]) -> str:
+    """The cell's file name stem, e.g. `goal0.02_delay0.15_depth0`."""
+    return "_".join(f"{axis}{v:g}" for axis, v in zip(AXES, cell, strict=True))
+
+
+def with_world(cfg: core.SimConfig, cell: Sequence[float]) -> core.SimConfig:
+    """The study `cfg` in the world of `cell` (its other impairments kept)."""
+    world = cfg.world.replace(**{f: float(v) for f, v in zip(AXES.values(), cell, strict=True)})
+    changes: dict[str, Any] = {"world": world}
+    if "goal_sigma_m" in {f.name for f in dataclasses.fields(core.SimConfig)}:
+        # Until the study reads its goal noise from `world` (the impairments' mechanisms),
+        # the goal axis sets the field it reads today.
+        changes["goal_sigma_m"] = world.goal_sigma_m
+    return dataclasses.replace(cfg, **changes)
+
+
+def settings(cfg: core.SimConfig) -> dict[str, Any]:
+    """What defines a cell's results besides its world (stored in each cell's file, compared
+    on `--resume`)."""
+    d = cfg.to_dict()
+    for k in ("world", "goal_sigma_m", "example", "max_paths"):
+        d.pop(k, None)
+    return json.loads(json.dumps(d))
+
+
+# --- one cell (a Ray task) --------------------------------------------------------------------
+
+
+def cell_task(cfg: core.SimConfig, cell: Sequence[float]) -> dict[str, Any]:
+    """Run every mode of `cfg` in the world of `cell` on trajectories 0 .. N-1; per mode the
+    per-trajectory success, time [s] and censoring, and the cell's compute time.
+
+    Plain Python: it runs as a Ray task or in this process alike.
+    """
+    t0 = time.perf_counter()
+    c = dataclasses.replace(with_world(cfg, cell), max_paths=0)
+    n = c.trajectories
+    chunks = [core.run_chunk(c, range(a, min(a + CHUNK, n))) for a in range(0, n, CHUNK)]
+    res = core.merge(c, chunks)
+    modes: dict[str, Any] = {}
+    for name, r in res.modes.items():
+        gave_up, limit = core.censored(c, r)
+        modes[name] = {
+            "success": r.success.astype(int).tolist(),
+            "time_s": r.time_s.tolist(),
+            "censored": (gave_up | limit).astype(int).tolist(),
+        }
+    return {
+        "schema": SCHEMA,
+        "cell": dict(zip(AXES.values(), map(float, cell), strict=True)),
+        "world": c.world.to_dict(),
+        "settings": settings(cfg),
+        "modes": modes,
+        "seconds": time.perf_counter() - t0,
+    }
+
+
+def summarise_cell(data: dict[str, Any]) -> dict[str, Any]:
+    """The statistics of one cell (module docstring) from its `cell_task` result."""
+    per: dict[str, Any] = {}
+    success = {m: np.asarray(v["success"], dtype=bool) for m, v in data["modes"].items()}
+    times = {m: np.asarray(v["time_s"], dtype=np.float64) for m, v in data["modes"].items()}
+    for m, v in data["modes"].items():
+        s = success[m]
+        sr = metrics.success_rate(int(s.sum()), int(s.size))
+        gm = metrics.geometric_mean(times[m])
+        per[m] = {
+            "success": sr.laplace,
+            "successes": sr.successes,
+            "n": sr.n,
+            "success_ci95": [sr.ci_low, sr.ci_high],
+            "time_s": gm.mean,
+            "time_ci95": [gm.ci_low, gm.ci_high],
+            "censored_share": float(np.mean(v["censored"])),
+        }
+
+    def best(names: Iterable[str]) -> str | None:
+        names = list(names)
+        if not names:
+            return None
+        return min(names, key=lambda m: (-per[m]["successes"], per[m]["time_s"]))
+
+    out: dict[str, Any] = {
+        "cell": data["cell"],
+        "name": cell_name(list(data["cell"].values())),
+        "modes": per,
+        "best_mode": best(per),
+        "seconds": data.get("seconds"),
+    }
+    scalar = best(m for m in SCALAR_MODES if m in per)
+    out["best_scalar"] = scalar
+    if "DS" in per and scalar is not None:
+        ds, sc = success["DS"], success[scalar]
+        diff = metrics.paired_difference(ds.astype(float), sc.astype(float))
+        mc = metrics.mcnemar(ds, sc)
+        chi = metrics.n1_chi_squared(int(ds.sum()), ds.size, int(sc.sum()), sc.size)
+        logd = metrics.paired_difference(np.log(times["DS"]), np.log(times[scalar]))
+        if mc.p_exact < ALPHA and diff.mean != 0:
+            verdict = "DS wins" if diff.mean > 0 else "DS loses"
+        else:
+            verdict = "tie"
+        out["ds_minus_best_scalar"] = {
+            "versus": scalar,
+            "success_difference": diff.mean,
+            "ci95": [diff.ci_low, diff.ci_high],
+            "mcnemar": dataclasses.asdict(mc),
+            "n1_chi2": dataclasses.asdict(chi),
+            "time_ratio": math.exp(logd.mean),
+            "time_ratio_ci95": [math.exp(logd.ci_low), math.exp(logd.ci_high)],
+            "verdict": verdict,
+        }
+    return out
+
+
+# --- the sweep --------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SweepRun:
+    """What a sweep did: its summary (sweep.json) and the cells that failed."""
+
+    summary: dict[str, Any]
+    failed: dict[str, str]
+
+
+def cells_dir(out: Path) -> Path:
+    return out / "cells"
+
+
+def load_done(
+    out: Path, cfg: core.SimConfig, cells: Sequence[tuple[float, ...]]
+) -> dict[str, dict[str, Any]]:
+    """The cells of `cells` already in DIR/cells with the same settings.
+
+    Raises:
+        InputError: a cell file is unreadable, or holds other settings (one line).
+    """
+    want = settings(cfg)
+    done = {}
+    for cell in cells:
+        path = cells_dir(out) / f"{cell_name(cell)}.json"
+        if not path.exists():
+            continue
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, ValueError) as exc:
+            raise InputError(f"--resume: cannot read {path}: {exc}") from None
+        if data.get("settings") != want:
+            raise InputError(
+                f"--resume: {path} was computed with other settings (trajectories, seed, modes, "
+                "operator or arbitration); use a new --out"
+            )
+        done[cell_name(cell)] = data
+    return done
+
+
+def check_out(out: Path, resume: bool) -> None:
+    """Without `--resume` DIR must not hold a sweep; with it, it must.
+
+    Raises:
+        InputError: one line saying which.
+    """
+    held = (out / "sweep.json").exists() or any(cells_dir(out).glob("*.json"))
+    if held and not resume:
+        raise InputError(f"{out} holds a sweep already: --resume to continue it, or a new --out")
+    if resume and not held:
+        raise InputError(f"--resume: {out} holds no sweep")
+
+
+def run_sweep(
+    cfg: core.SimConfig,
+    grid: Grid,
+    out: Path,
+    executor: Callable[[], Any],
+    on_cell: Callable[[str, bool], None] | None = None,
+) -> SweepRun:
+    """Run the cells of `grid` not yet in DIR/cells, write each as it finishes, and return
+    the summary of every cell.
+
+    Args:
+        cfg: the study (its trajectories, seed, modes, operator and arbitration).
+        grid: the levels.
+        out: the output folder (DIR/cells is created).
+        executor: makes the task executor (`RayExecutor`) when a cell needs computing; it
+            is closed when the cells are done.
+        on_cell: called with each cell's name and whether it was computed (False: resumed).
+    """
+    t0 = time.perf_counter()
+    cells = grid.cells()
+    cells_dir(out).mkdir(parents=True, exist_ok=True)
+    done = load_done(out, cfg, cells)
+    for name in done:
+        if on_cell is not None:
+            on_cell(name, False)
+    todo = [c for c in cells if cell_name(c) not in done]
+    failed: dict[str, str] = {}
+    cluster: dict[str, Any] | None = None
+    start_s = 0.0
+    if todo:
+        from dsteleop.app.tune.driver import TaskError
+
+        t1 = time.perf_counter()
+        with executor() as ex:
+            start_s = time.perf_counter() - t1
+            cluster = ex.describe()
+            shared = ex.share(cfg)
+            pending = {ex.submit(cell_task, shared, c): c for c in todo}
+            while pending:
+                for h in ex.ready(list(pending), 1.0):
+                    cell = pending.pop(h)
+                    name = cell_name(cell)
+                    try:
+                        data = ex.result(h)
+                    except TaskError as exc:
+                        failed[name] = str(exc)
+                        continue
+                    _write_atomic(cells_dir(out) / f"{name}.json", data)
+                    done[name] = data
+                    if on_cell is not None:
+                        on_cell(name, True)
+    summaries = [summarise_cell(done[cell_name(c)]) for c in cells if cell_name(c) in done]
+    summary = {
+        "schema": SCHEMA,
+        "grid": grid.to_dict(),
+        "axes": dict(AXES),
+        "trajectories": cfg.trajectories,
+        "seed": cfg.seed,
+        "modes": [m.value for m in cfg.modes],
+        "operator": cfg.operator,
+        "scalar_modes": [m for m in SCALAR_MODES if m in {x.value for x in cfg.modes}],
+        "alpha": ALPHA,
+        "cells": summaries,
+        "counts": _counts(summaries),
+        "computed": len(todo) - len(failed),
+        "resumed": len(cells) - len(todo),
+        "failed": failed,
+        "cluster": cluster,
+        "cluster_start_s": round(start_s, 3),
+        "elapsed_s": round(time.perf_counter() - t0, 3),
+        "config": settings(cfg),
+        "world": cfg.world.to_dict(),
+    }
+    return SweepRun(summary, failed)
+
+
+def _counts(cells: Sequence[dict[str, Any]]) -> dict[str, int]:
+    out = {"DS wins": 0, "tie": 0, "DS loses": 0}
+    for c in cells:
+        d = c.get("ds_minus_best_scalar")
+        if d is not None:
+            out[d["verdict"]] += 1
+    return out
+
+
+def _write_atomic(path: Path, data: dict[str, Any]) -> None:
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(data, allow_nan=False) + "\n")
+    os.replace(tmp, path)
+
+
+# --- outputs ----------------------------------------------------------------------------------
+
+
+def markdown(summary: dict[str, Any]) -> str:
+    """sweep.md: one row per cell."""
+    modes = summary["modes"]
+    lines = [
+        f"# Sweep: {len(summary['cells'])} cells x {len(modes)} modes x "
+        f"{summary['trajectories']} trajectories (seed {summary['seed']}, operator "
+        f"`{summary['operator']}`)",
+        "",
+        "Every mode of a cell runs on the same trajectories (paired). Per mode: success "
+        "(Laplace estimate) / geometric-mean time [s]. Best: the most successes (ties: the "
+        "shorter time). DS - scalar: DS's success minus the best single-alpha mode's "
+        f"({', '.join(summary['scalar_modes']) or 'none present'}), mean paired difference "
+        "with its 95 % interval; McNemar's exact and mid-p tests of the paired outcomes; "
+        f"verdict by the exact p < {summary['alpha']}.",
+        "",
+        f"Counts: {', '.join(f'{k} {v}' for k, v in summary['counts'].items())}.",
+        "",
+        "| goal sigma [m] | delay [s] | depth sigma [m] | "
+        + " | ".join(modes)
+        + " | best | DS - best scalar [95 % CI] | McNemar p (exact / mid) | verdict |",
+        "| --- | --- | --- |" + " --- |" * len(modes) + " --- | --- | --- | --- |",
+    ]
+    for c in summary["cells"]:
+        g, d, z = (c["cell"][f] for f in AXES.values())
+        row = [f"{g:g}", f"{d:g}", f"{z:g}"]
+        for m in modes:
+            r = c["modes"].get(m)
+            row.append("n/a" if r is None else f"{r['success']:.3f} / {r['time_s']:.1f}")
+        row.append(str(c["best_mode"]))
+        x = c.get("ds_minus_best_scalar")
+        if x is None:
+            row += ["n/a", "n/a", "n/a"]
+        else:
+            lo, hi = x["ci95"]
+            row.append(f"{x['success_difference']:+.3f} [{lo:+.3f}, {hi:+.3f}] vs {x['versus']}")
+            row.append(f"{_p(x['mcnemar']['p_exact'])} / {_p(x['mcnemar']['p_mid'])}")
+            row.append(x["verdict"])
+        lines.append("| " + " | ".join(row) + " |")
+    if summary["failed"]:
+        lines += ["", "Failed cells:", ""]
+        lines += [f"- {k}: {v}" for k, v in summary["failed"].items()]
+    lines.append("")
+    return "\n".join(lines)
+
+
+def figure(summary: dict[str, Any], path: Path) -> None:
+    """sweep.png: one panel per depth level, goal (rows) x delay (columns); colour = DS minus
+    the best scalar mode's success, label = the best mode and the difference with its
+    interval (* where McNemar's exact p < alpha)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    grid = summary["grid"]
+    goals, delays, depths = grid["goal"], grid["delay"], grid["depth"]
+    by = {tuple(c["cell"][f] for f in AXES.values()): c for c in summary["cells"]}
+    diffs = [
+        abs(c["ds_minus_best_scalar"]["success_difference"])
+        for c in summary["cells"]
+        if "ds_minus_best_scalar" in c
+    ]
+    vmax = max([0.05, *diffs])
+    fig, axes = plt.subplots(
+        1,
+        len(depths),
+        figsize=(1.9 * len(delays) * len(depths) + 1.5, 1.0 * len(goals) + 1.6),
+        squeeze=False,
+    )
+    image = None
+    for k, z in enumerate(depths):
+        ax = axes[0, k]
+        val = np.full((len(goals), len(delays)), np.nan)
+        for i, g in enumerate(goals):
+            for j, d in enumerate(delays):
+                c = by.get((g, d, z))
+                if c is None:
+                    ax.text(j, i, "not run", ha="center", va="center", fontsize=7)
+                    continue
+                x = c.get("ds_minus_best_scalar")
+                label = str(c["best_mode"])
+                dark = False
+                if x is not None:
+                    val[i, j] = x["success_difference"]
+                    dark = abs(val[i, j]) > 0.6 * vmax
+                    lo, hi = x["ci95"]
+                    star = "*" if x["mcnemar"]["p_exact"] < summary["alpha"] else ""
+                    label += f"\n{x['success_difference']:+.3f}{star}\n[{lo:+.3f}, {hi:+.3f}]"
+                colour = "white" if dark else "black"
+                ax.text(j, i, label, ha="center", va="center", fontsize=7, color=colour)
+        image = ax.imshow(val, cmap="RdBu", vmin=-vmax, vmax=vmax, aspect="auto")
+        ax.set_xticks(range(len(delays)), [f"{d:g}" for d in delays])
+        ax.set_yticks(range(len(goals)), [f"{g:g}" for g in goals])
+        ax.set_xlabel("delay [s]")
+        if k == 0:
+            ax.set_ylabel("goal noise sigma [m]")
+        ax.set_title(f"depth error sigma {z:g} m", fontsize=9)
+    if image is not None:
+        bar = fig.colorbar(image, ax=list(axes[0]), shrink=0.9)
+        bar.set_label("success: DS minus best scalar")
+    fig.suptitle(
+        f"Where DS helps: best mode per cell; colour = DS - best scalar success "
+        f"({summary['trajectories']} paired trajectories, * McNemar p < {summary['alpha']})",
+        fontsize=9,
+    )
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _p(p: float) -> str:
+    return f"{p:.3g}" if p >= 1e-300 else "< 1e-300"
+
+
+# --- the command (`dsteleop sim --sweep`) -------------------------------------------------------
+
+
+def run_command(
+    cfg: core.SimConfig,
+    grid: Grid,
+    out: Path,
+    address: str | None,
+    workers: int | None,
+    resume: bool,
+    figures: bool,
+    show_progress: bool,
+) -> int:
+    """Run the sweep, write DIR/sweep.json, sweep.md and sweep.png, print one JSON line.
+
+    Returns:
+        0, or 2 when a cell failed (the outputs hold the others; the first error is raised
+        as one line).
+
+    Raises:
+        InputError: DIR holds a sweep without `--resume` (or none with it), a stored cell has
+            other settings, the cluster cannot start or be reached, a cell failed.
+    """
+    import sys
+
+    from dsteleop.app.cli.progress import Progress
+    from dsteleop.app.tune.cluster import RayExecutor, check_reachable
+
+    check_out(out, resume)
+    check_reachable(address)
+    cells = grid.cells()
+    with Progress(len(cells), sys.stderr, show_progress, "sweep", "cells") as bar:
+        run = run_sweep(
+            cfg,
+            grid,
+            out,
+            lambda: RayExecutor(address, workers),
+            lambda _name, _computed: bar.advance(),
+        )
+    s = run.summary
+    (out / "sweep.json").write_text(json.dumps(s, indent=2, allow_nan=False) + "\n")
+    (out / "sweep.md").write_text(markdown(s))
+    files = ["sweep.json", "sweep.md"]
+    if figures and s["cells"]:
+        figure(s, out / "sweep.png")
+        files.append("sweep.png")
+    json.dump(
+        {
+            "out": str(out),
+            "files": files,
+            "cells": len(cells),
+            "computed": s["computed"],
+            "resumed": s["resumed"],
+            "failed": len(run.failed),
+            "counts": s["counts"],
+            "trajectories": s["trajectories"],
+            "modes": s["modes"],
+            "cluster": s["cluster"],
+            "elapsed_s": s["elapsed_s"],
+        },
+        sys.stdout,
+    )
+    sys.stdout.write("\n")
+    if run.failed:
+        name, error = next(iter(run.failed.items()))
+        raise InputError(
+            f"{len(run.failed)} cell(s) failed, first {name}: {error} (--resume reruns them)"
+        )
+    return 0

@@ -1,0 +1,256 @@
+"""`dsteleop sim --sweep`: the grid, a real local Ray cluster of 2 workers, resuming, pairing,
+McNemar's test of each cell against scipy, bad grids."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from dsteleop.app.cli.main import main
+from dsteleop.app.operator.world import Impairments
+from dsteleop.app.study import core as sc
+from dsteleop.app.study import sweep
+from dsteleop.arbitration import Mode
+
+# --- the grid ---------------------------------------------------------------------------------
+
+
+def test_default_grid_has_three_levels_per_axis_around_the_worlds_defaults() -> None:
+    g = sweep.default_grid()
+    assert len(g.cells()) == 27
+    w = Impairments()
+    for axis, name in sweep.AXES.items():
+        levels = g.levels[axis]
+        assert len(levels) == 3 and levels[0] == 0.0 and levels[1] < levels[2]
+        d = getattr(w, name)
+        if d > 0:
+            assert levels == (0.0, d, 2 * d)
+    cells = g.cells()
+    assert len(set(cells)) == 27 and cells[0] == (0.0, 0.0, 0.0)
+
+
+def test_parse_grid_overrides_given_axes_only() -> None:
+    g = sweep.parse_grid(["goal=0,0.01", "delay=0.3"])
+    assert g.levels["goal"] == (0.0, 0.01) and g.levels["delay"] == (0.3,)
+    assert g.levels["depth"] == sweep.default_levels("depth")
+    assert len(g.cells()) == 2 * 1 * 3
+    assert sweep.cell_name((0.02, 0.15, 0.0)) == "goal0.02_delay0.15_depth0"
+
+
+def test_with_world_sets_the_cell_and_keeps_the_rest() -> None:
+    cfg = sc.SimConfig(trajectories=3, world=Impairments(lateral_sigma_m=0.005))
+    c = sweep.with_world(cfg, (0.04, 0.1, 0.003))
+    assert c.world == Impairments(
+        goal_sigma_m=0.04, delay_s=0.1, depth_sigma_m=0.003, lateral_sigma_m=0.005
+    )
+    # The robot's goal noise follows the goal axis (the study's draws).
+    i = 1
+    g0 = sc.sample_closed_trial(sweep.with_world(cfg, (0.0, 0.0, 0.0)), i).robot_goal
+    g4 = sc.sample_closed_trial(c, i).robot_goal
+    np.testing.assert_allclose(g0[:2], cfg.handle_xy_m)
+    assert np.linalg.norm(g4[:2] - np.asarray(cfg.handle_xy_m)) > 0
+
+
+@pytest.mark.parametrize(
+    ("spec", "message"),
+    [
+        (["goal=a"], "'a' is not a number"),
+        (["noise=0,1"], "AXIS one of goal, delay, depth"),
+        (["goal"], "expected AXIS=V1,V2"),
+        (["delay=0,-0.1"], "finite and >= 0"),
+        (["depth=0,0"], "given twice"),
+        (["goal=0", "goal=0.1"], "axis 'goal' given twice"),
+        (["goal="], "'' is not a number"),
+        (["goal=0", "--trajectories", "1"], "--sweep needs --trajectories >= 2"),
+        (["goal=0", "--resume", "--address", "nowhere"], "expected ray://HOST:PORT"),
+    ],
+)
+def test_a_grid_that_does_not_parse_is_one_line_and_exit_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], spec: list[str], message: str
+) -> None:
+    code = main(["sim", "--no-progress", "--out", str(tmp_path / "o"), "--sweep", *spec])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert len(err) == 1 and err[0].startswith("dsteleop sim: error:") and message in err[0]
+    assert not (tmp_path / "o" / "cells").exists()
+
+
+def test_bad_grid_in_a_subprocess_has_no_traceback(tmp_path: Path) -> None:
+    args = ["sim", "--out", str(tmp_path), "--sweep", "delay=soon"]
+    proc = subprocess.run(
+        [sys.executable, "-m", "dsteleop.app.cli.main", *args],
+        capture_output=True,
+        check=False,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip().splitlines() == [
+        "dsteleop sim: error: --sweep 'delay=soon': 'soon' is not a number"
+    ]
+
+
+def test_resume_and_address_need_a_sweep(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["sim", "--out", str(tmp_path), "--resume"]) == 2
+    assert "go with --sweep" in capsys.readouterr().err
+
+
+# --- one cell's statistics ----------------------------------------------------------------------
+
+
+def _cell(success: dict[str, list[int]]) -> dict[str, Any]:
+    n = len(next(iter(success.values())))
+    return {
+        "cell": {"goal_sigma_m": 0.0, "delay_s": 0.0, "depth_sigma_m": 0.0},
+        "modes": {
+            m: {"success": s, "time_s": [5.0 + k for k in range(n)], "censored": [0] * n}
+            for m, s in success.items()
+        },
+    }
+
+
+def test_cell_verdicts_can_come_out_either_way() -> None:
+    n = 30
+    win = sweep.summarise_cell(_cell({"S": [0] * n, "DS": [1] * n, "manual": [1] * n}))
+    x = win["ds_minus_best_scalar"]
+    assert x["versus"] == "S" and x["verdict"] == "DS wins" and x["success_difference"] == 1.0
+    lose = sweep.summarise_cell(_cell({"S": [1] * n, "DS": [0] * n}))
+    assert lose["ds_minus_best_scalar"]["verdict"] == "DS loses"
+    assert lose["best_mode"] == "S"
+    # Discordant both ways, balanced: a tie, whatever the marginal rates.
+    tie = sweep.summarise_cell(_cell({"S": [1, 0] * (n // 2), "DS": [0, 1] * (n // 2)}))
+    assert tie["ds_minus_best_scalar"]["verdict"] == "tie"
+    assert tie["ds_minus_best_scalar"]["mcnemar"]["p_exact"] == 1.0
+    # The best scalar is the best single-alpha mode present (the scalar baseline too).
+    two = sweep.summarise_cell(_cell({"S": [0] * n, "scalar": [1] * n, "DS": [1] * n}))
+    assert two["ds_minus_best_scalar"]["versus"] == "scalar"
+    assert two["ds_minus_best_scalar"]["verdict"] == "tie"
+
+
+# --- a real sweep on a local Ray cluster of 2 workers --------------------------------------------
+
+
+def _sweep(out: Path, *extra: str, grid: tuple[str, ...] = ("goal=0,0.04", "delay=0,0.15")) -> int:
+    return main(
+        [
+            "sim",
+            "--no-progress",
+            "--out",
+            str(out),
+            "--trajectories",
+            "6",
+            "--seed",
+            "4",
+            "--modes",
+            "S,DS,manual",
+            "--workers",
+            "2",
+            "--sweep",
+            *grid,
+            "depth=0",
+            *extra,
+        ]
+    )
+
+
+@pytest.mark.slow
+def test_sweep_on_a_local_two_worker_cluster_writes_resumes_and_pairs(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "sweep"
+    assert _sweep(out) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed["cells"] == 4 and printed["computed"] == 4 and printed["resumed"] == 0
+    assert printed["cluster"]["cluster"] == "local" and printed["cluster"]["cpus"] == 2
+    assert printed["files"] == ["sweep.json", "sweep.md", "sweep.png"]
+    s = json.loads((out / "sweep.json").read_text())
+    assert s["modes"] == ["S", "DS", "manual"] and s["scalar_modes"] == ["S"]
+    assert len(s["cells"]) == 4 and sum(s["counts"].values()) == 4
+    png = (out / "sweep.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+    md = (out / "sweep.md").read_text()
+    assert "| goal sigma [m] | delay [s] | depth sigma [m] | S | DS | manual | best |" in md
+    assert md.count("\n| 0") + md.count("\n| 0.04") >= 4
+
+    cells = {tuple(c["cell"].values()): c for c in s["cells"]}
+    raw = {p.stem: json.loads(p.read_text()) for p in sorted((out / "cells").glob("*.json"))}
+    assert len(raw) == 4
+    for c in s["cells"]:
+        data = raw[c["name"]]
+        # McNemar's exact test of DS vs the best scalar, against scipy on the stored outcomes.
+        ds = np.array(data["modes"]["DS"]["success"], dtype=bool)
+        sv = np.array(data["modes"]["S"]["success"], dtype=bool)
+        b, k = int(np.sum(ds & ~sv)), int(np.sum(~ds & sv))
+        x = c["ds_minus_best_scalar"]
+        ref = 1.0 if b + k == 0 else stats.binomtest(min(b, k), b + k, 0.5).pvalue
+        assert x["mcnemar"]["p_exact"] == pytest.approx(ref, rel=1e-9)
+        assert (x["mcnemar"]["first_only"], x["mcnemar"]["second_only"]) == (b, k)
+    # The goal axis works: with no goal noise S parks the robot on the handle and succeeds
+    # every time; with 4 cm per axis it misses most.
+    for delay in (0.0, 0.15):
+        assert cells[(0.0, delay, 0.0)]["modes"]["S"]["successes"] == 6
+        assert cells[(0.04, delay, 0.0)]["modes"]["S"]["successes"] < 6
+    # Paired: the goal noise changes only the robot's goal, so manual (alpha = 0) gives the
+    # same trials in every goal level, and a cell run alone gives the sweep's results.
+    m0 = raw["goal0_delay0_depth0"]["modes"]["manual"]
+    m4 = raw["goal0.04_delay0_depth0"]["modes"]["manual"]
+    assert m0["success"] == m4["success"]
+    np.testing.assert_allclose(m0["time_s"], m4["time_s"], rtol=0, atol=1e-9)
+    cfg = sc.SimConfig(trajectories=6, seed=4, modes=(Mode.S, Mode.DS, Mode.MANUAL))
+    alone = sweep.cell_task(cfg, (0.04, 0.0, 0.0))
+    for mode in ("S", "DS", "manual"):
+        got = raw["goal0.04_delay0_depth0"]["modes"][mode]
+        assert alone["modes"][mode]["success"] == got["success"]
+        np.testing.assert_allclose(alone["modes"][mode]["time_s"], got["time_s"], atol=1e-9)
+
+    # Resume: a larger grid reuses the finished cells (their files untouched) and computes
+    # only the new ones.
+    before = {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in (out / "cells").iterdir()}
+    assert _sweep(out, "--resume", grid=("goal=0,0.02,0.04", "delay=0,0.15")) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed["cells"] == 6 and printed["computed"] == 2 and printed["resumed"] == 4
+    for p in (out / "cells").iterdir():
+        if p.name in before:
+            assert (p.stat().st_mtime_ns, p.read_bytes()) == before[p.name]
+    assert len(list((out / "cells").glob("*.json"))) == 6
+    # Everything done: a resume starts no cluster and computes nothing.
+    assert _sweep(out, "--resume", grid=("goal=0,0.02,0.04", "delay=0,0.15")) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed["computed"] == 0 and printed["resumed"] == 6 and printed["cluster"] is None
+
+    # Without --resume the folder is not overwritten; other settings are refused on resume.
+    assert _sweep(out) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "holds a sweep already" in err[0]
+    code = main(
+        ["sim", "--no-progress", "--out", str(out), "--trajectories", "7", "--seed", "4",
+         "--modes", "S,DS,manual", "--sweep", "goal=0", "delay=0", "depth=0", "--resume"]
+    )  # fmt: skip
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "other settings" in err[0]
+
+
+def test_the_sweep_module_and_a_cell_leave_ray_unloaded() -> None:
+    """Only app/tune/cluster.py imports Ray: a cell computes in plain Python."""
+    code = (
+        "import sys\n"
+        "import dsteleop.app.cli.sim\n"
+        "from dsteleop.app.study import sweep, core\n"
+        "from dsteleop.arbitration import Mode\n"
+        "cfg = core.SimConfig(trajectories=2, modes=(Mode.S, Mode.DS))\n"
+        "r = sweep.cell_task(cfg, (0.0, 0.0, 0.0))\n"
+        "print(sorted(r['modes']), 'ray' in sys.modules)\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True
+    )
+    assert out.stdout.split() == ["['DS',", "'S']", "False"]
