@@ -19,7 +19,7 @@ import pytest
 from dsteleop.app.cli.main import main
 from dsteleop.app.cli.options import LoopOptions
 from dsteleop.app.loop import LoopConfig, TeleopLoop
-from dsteleop.app.loop.timing import OVERRUN_WINDOW_S, ManualClock, RateClock
+from dsteleop.app.loop.timing import ManualClock, RateClock
 from dsteleop.app.session.writer import HISTORY_FILE, META, TICKS
 from dsteleop.arbitration import Mode
 
@@ -130,6 +130,8 @@ def test_a_demo_run_takes_about_the_same_world_time_at_any_rate() -> None:
 
 
 def test_a_sustained_overrun_share_is_measured_and_reported() -> None:
+    from dsteleop.app.loop.timing import OVERRUN_WINDOW_S
+
     clock = ManualClock(0.0)
     rate = RateClock(30.0, clock)
     period = 1.0 / 30.0
