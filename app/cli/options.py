@@ -375,7 +375,7 @@ def check_loop_bounds(
         raise ConfigError(
             f"--rate must be in {lo:g}-{hi:g} Hz, got {rate_hz:g}: the simulated world advances "
             "1/rate s per tick, and outside this range either the arm's controllers or the "
-            "machine cannot keep up (docs/ARCHITECTURE.md, Loop rate)"
+            "machine cannot keep up (docs/ARCHITECTURE.md, Runs you can trust)"
         )
     if goal_noise_m is not None and not (
         math.isfinite(goal_noise_m) and 0 <= goal_noise_m <= MAX_GOAL_NOISE_M
