@@ -1,13 +1,14 @@
 """The arm + hand under position control: pose and openness in, achieved state out.
 
-One control tick (`Robot.set_target` then `Robot.step`, 1/30 s):
+One control tick (`Robot.set_target` then `Robot.step`, `control_dt_s`: 1/30 s by default,
+1/rate for a loop at another rate, `RobotConfig.for_period`):
 
     set_target(p, R, g):  p clamped into the workspace (box, then reach sphere about the
                           shoulder)  ->  IK (`kinematics.ArmChain.ik`: damped least
                           squares, joint limits, null-space pull to the rest posture,
                           warm-started from the last solution)  ->  position motors
                           finger joints: q = q_closed + g * (q_open - q_closed), per finger
-    step():               `substeps` physics steps of 1/(30 * substeps) s, then contacts
+    step():               `substeps` physics steps of control_dt_s / substeps, then contacts
     state():              palm pose by forward kinematics of the simulated joints
 
 Finger openness in the returned `HandState` is the commanded set-point, not the measured
@@ -60,6 +61,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -76,6 +78,8 @@ Array = NDArray[np.float64]
 log = logging.getLogger(__name__)
 
 CONTROL_DT_S = 1.0 / 30.0
+#: The longest physics step `RobotConfig.for_rate` gives [s] (the default's: 1/30 s in 3).
+MAX_PHYSICS_DT_S = CONTROL_DT_S / 3
 
 
 @dataclass(frozen=True)
@@ -112,7 +116,7 @@ class RobotConfig:
     """Control and physics settings (validated at construction).
 
     Attributes:
-        substeps: physics steps per control tick (time step = 1 / (30 * substeps) s).
+        substeps: physics steps per control tick (time step = control_dt_s / substeps).
         solver_iterations: PyBullet constraint-solver iterations per physics step.
         ik_iterations: maximum damped-least-squares iterations per tick.
         ik_tol_m: IK stops when the position error is below this [m] ...
@@ -142,6 +146,7 @@ class RobotConfig:
             20-30 g phalanx on that spring: 2 sqrt(k m) = 28-35 N s/m).
         rest_posture_rad: null-space rest posture of the arm joints, by name [rad].
         workspace: palm target clamp region.
+        control_dt_s: simulated time of one control tick [s] (the loop's period).
     """
 
     substeps: int = 3
@@ -170,6 +175,19 @@ class RobotConfig:
         )
     )
     workspace: Workspace = field(default_factory=Workspace)
+    control_dt_s: float = CONTROL_DT_S
+
+    @classmethod
+    def for_period(cls, control_dt_s: float, **kw: Any) -> RobotConfig:
+        """The config of a loop whose period is `control_dt_s` [s]: one control tick is that
+        much simulated time, in as many physics steps as keep each at most
+        `MAX_PHYSICS_DT_S` (3 at 30 Hz, as the controllers were tuned; 9 at 10 Hz, 1 at
+        120 Hz)."""
+        dt = float(control_dt_s)
+        if not (math.isfinite(dt) and dt > 0):
+            raise ConfigError(f"robot config: control_dt_s must be > 0, got {control_dt_s!r}")
+        substeps = max(1, math.ceil(dt / MAX_PHYSICS_DT_S - 1e-9))
+        return cls(control_dt_s=dt, substeps=substeps, **kw)
 
     def __post_init__(self) -> None:
         for name in ("substeps", "solver_iterations", "ik_iterations"):
@@ -193,6 +211,7 @@ class RobotConfig:
             "stall_lead_rad",
             "pad_stiffness_n_per_m",
             "pad_damping_n_s_per_m",
+            "control_dt_s",
         ):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
@@ -204,7 +223,7 @@ class RobotConfig:
     @property
     def physics_dt_s(self) -> float:
         """Physics time step [s]."""
-        return CONTROL_DT_S / self.substeps
+        return self.control_dt_s / self.substeps
 
 
 @dataclass(frozen=True)
@@ -494,11 +513,11 @@ class Robot:
         return res.q_rad
 
     def step(self) -> None:
-        """Advance the physics by one control tick (1/30 s) under the current targets."""
+        """Advance the physics by one control tick (`control_dt_s`) under the current targets."""
         self._state_cache = None
         for _ in range(self.config.substeps):
             pb.stepSimulation(physicsClientId=self._c)
-        self._t_s += CONTROL_DT_S
+        self._t_s += self.config.control_dt_s
         self._contacts = self._read_contacts()
         self._update_stall()
         if self.config.grasp_helper:

@@ -1,13 +1,14 @@
 """The kitchen environment: robot + world + task in one PyBullet DIRECT client.
 
-The control loop drives it exactly like this (30 Hz, dt = 1/30 s):
+The control loop drives it exactly like this (30 Hz, dt = 1/30 s; a loop at another rate
+builds it with `RobotConfig.for_period(1 / rate)`, and each step is then 1/rate s):
 
     env = KitchenEnv()
     state = env.reset(utensil="spoon", seed=0)
     while env.task.outcome is None:
         step = arbiter.step(...)  # X_goal = env.task.goal, X_start = env.task.X_start
         env.set_target(step.X_next.position, step.X_next.rotation, step.X_next.openness)
-        state = env.step()        # 1/30 s of physics, then the task's bookkeeping
+        state = env.step()        # dt of physics, then the task's bookkeeping
         X_current = state.palm
 
 `reset` rebuilds the whole simulation (resetSimulation + load), so the same seed and the same
@@ -24,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dsteleop.errors import ConfigError, InputError
-from dsteleop.robot.arm import CONTROL_DT_S, Robot, RobotConfig, RobotState
+from dsteleop.robot.arm import Robot, RobotConfig, RobotState
 from dsteleop.robot.bullet import pb
 from dsteleop.robot.hand_urdf import FINGER_NAMES
 from dsteleop.robot.kinematics import ArmChain
@@ -165,7 +166,7 @@ class KitchenEnv:
         )
         home = np.asarray(self.config.home_position_m, dtype=np.float64)
         self._robot.reset_posture(home, R_PALM_DOWN, np.ones(len(FINGER_NAMES)))
-        for _ in range(round(self.config.settle_s / CONTROL_DT_S)):
+        for _ in range(round(self.config.settle_s / self.config.robot.control_dt_s)):
             self._robot.step()
         self._robot.reset_clock()
         self._utensil_id = self._world.utensils[utensil]
@@ -209,8 +210,8 @@ class KitchenEnv:
 
     @property
     def dt_s(self) -> float:
-        """Control period [s]."""
-        return CONTROL_DT_S
+        """Control period [s]: the simulated time of one `step`."""
+        return self.config.robot.control_dt_s
 
     # ------------------------------------------------------------------ control
     def set_target(self, position_m: Array, rotation: Array, openness: Array) -> None:

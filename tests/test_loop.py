@@ -121,7 +121,7 @@ def test_a_segment_end_adds_an_attempt_and_restarts_the_start_states(tmp_path: P
         hand,
         plant,
         clock=ManualClock(0.0),
-        history_file=HistoryFile(tmp_path),
+        history_file=HistoryFile(tmp_path / HISTORY_FILE),
     )
     records: list[TickRecord] = []
     while not records or records[-1].phase is Phase.PICK:

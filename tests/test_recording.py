@@ -42,7 +42,8 @@ def ds_session(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("sessions")
     folder = root / "demo-ds"
     built = build(
-        LoopOptions.of("demo", LoopConfig(mode=Mode.DS)), realtime=False, history_dir=root
+        LoopOptions.of("demo", LoopConfig(mode=Mode.DS), history=root / HISTORY_FILE),
+        realtime=False,
     )
     try:
         built.loop.start_recording(folder)
@@ -298,8 +299,17 @@ def test_the_real_videos_replay_through_the_whole_system(shared_data: Path, tmp_
             assert mean is not None and 0 <= mean <= 2
             assert mean == pytest.approx(row["cosine_distance"] / row["actions"])
             assert row["agreement"] is not None and 0 <= row["agreement"] <= 1
+    # A clip that ends before the task's outcome is listed, never counted as a failed trial
+    # (only episodes with an outcome count); these short clips end before it.
+    counted = [s for s in m["episodes"] if s["counted"]]
+    for s in m["episodes"]:
+        ended = all(s["modes"][mode]["outcome"] != "none" for mode in ("S", "DS"))
+        assert s["counted"] == ended
+        assert s["end"] == ("video" if ended else "video ended before the outcome")
     for mode in ("S", "DS"):
-        assert m["modes"][mode]["n"] == 4
+        assert m["modes"][mode]["n"] == len(counted)
+        assert m["modes"][mode]["excluded"] == 4 - len(counted)
+    assert m["loop"] == "open"  # recorded hands replayed against a robot they never saw
 
 
 @pytest.mark.slow

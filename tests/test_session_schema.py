@@ -460,7 +460,7 @@ def test_a_bad_config_file_exits_2_with_one_line(
     [
         ("nonsense=1", "unknown arbitration parameter(s): nonsense"),
         ("kappa=abc", "--param kappa: not a number"),
-        ("window=2.5", "--param window: not a number"),
+        ("window=2.5", "--param window: must be a whole number, got 2.5"),
         ("kappa", "--param needs NAME=VALUE"),
         ("kappa=0", "kappa must be finite and > 0"),
     ],

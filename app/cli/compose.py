@@ -90,7 +90,6 @@ def build(
     *,
     realtime: bool,
     export_scene: bool = False,
-    history_dir: Path | None = None,
     record_root: Path | None = None,
     observers: tuple[Observer, ...] = (),
     mapping: MappingConfig | None = None,
@@ -101,7 +100,6 @@ def build(
         options: the loop options of the command.
         realtime: live threads and clock (True) or headless and deterministic (False).
         export_scene: compute link poses each tick (for a viewer).
-        history_dir: where the operator history persists (the recording root), or None.
         record_root: where a recording requested from the page is written, or None.
         observers: more observers of every tick.
         mapping: camera -> robot mapping (default `MappingConfig()`).
@@ -126,6 +124,7 @@ def build(
         goal_noise_m,
         export_scene=export_scene or options.rerun is not None,
         time_limit_s=options.time_limit_s,
+        control_dt_s=options.loop.dt_s,  # the world keeps the loop's time
     )
     rerun: Any = None
     try:
@@ -134,6 +133,8 @@ def build(
         frames: FrameRecorder | None = None
         video: VideoFileSource | None = None
         if spec.kind == "demo":
+            if options.record_video:
+                log.warning("--record-video: the demo has no camera frames; no video is recorded")
             demo = DemoOperator(
                 plant.true_goals,
                 start,
@@ -162,6 +163,7 @@ def build(
             hand = TrackedHandInput.from_source(
                 source, HandTracker(), WorkspaceMapping(mapping), delay, t0_s=0.0
             )
+        history = None if options.history is None else HistoryFile(options.history)
         meta: dict[str, Any] = {"source_kind": spec.kind, "seed": options.seed}
         if options.rerun is not None:
             from dsteleop.app.rrd.live import RerunLogger
@@ -180,7 +182,7 @@ def build(
             plant,
             clock=MonotonicClock() if realtime else ManualClock(0.0),
             observers=(*((demo,) if demo is not None else ()), *observers),
-            history_file=None if history_dir is None else HistoryFile(history_dir),
+            history_file=history,
             frame_recorder=frames,
             record_root=record_root,
             meta=meta,

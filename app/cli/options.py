@@ -6,10 +6,24 @@
                          {"arbitration": {...}, "loop": {...}} (what `dsteleop tune` writes
                          as best.json); --param applies on top of it
     loop options         --source, --mode, --utensil, --seed, --goal-noise, --input-delay,
-                         --rate, --lost-policy, --record, --record-video, --rerun,
-                         --rerun-connect: run and serve
+                         --rate, --lost-policy, --history, --record, --record-video,
+                         --rerun, --rerun-connect: run and serve
 
 Values are checked here, so a bad one is one line naming it (exit 2) before anything opens.
+Bounds that are not the loop's own domain, and why:
+
+    --rate          RATE_RANGE_HZ (10-120 Hz): the simulated world advances 1/rate s per tick
+                    (robot.arm.RobotConfig.control_dt_s), its physics in steps of at most
+                    1/90 s; below 10 Hz one tick's command moves the palm further than the
+                    arm's controllers were made for, and above 120 Hz no machine this runs on
+                    keeps up (a tick takes 2-4 ms, and a browser and tracking share the cores)
+    --goal-noise    at most MAX_GOAL_NOISE_M (0.1 m): beyond it the goal the robot knows lies
+                    typically further from the true one than the bin's inner half-width
+                    (0.18 m), so the robot works against any operator
+    --input-delay   at most MAX_INPUT_DELAY_S (1 s): each hand sample reaches the loop that
+                    much later, so nothing moves before it; teleoperation studies go up to
+                    about 1 s (beyond it operators move and wait, which the loop does not
+                    model), and a delay near the time limit only makes trials time out
 """
 
 from __future__ import annotations
@@ -36,6 +50,13 @@ from dsteleop.tracking.sources import (
 )
 
 log = logging.getLogger(__name__)
+
+#: The loop rates `--rate` accepts [Hz] (module docstring).
+RATE_RANGE_HZ = (10.0, 120.0)
+#: The largest `--goal-noise` [m] (module docstring).
+MAX_GOAL_NOISE_M = 0.1
+#: The largest `--input-delay` [s] (module docstring).
+MAX_INPUT_DELAY_S = 1.0
 
 
 def add_config_options(parser: argparse.ArgumentParser) -> None:
@@ -88,9 +109,15 @@ def parse_params(items: list[str]) -> dict[str, Any]:
         if not sep or not name:
             raise ConfigError(f"--param needs NAME=VALUE, got {item!r}")
         try:
-            out[name] = int(value) if name in ints else float(value)
+            number = float(value)
         except ValueError:
             raise ConfigError(f"--param {name}: not a number: {value!r}") from None
+        if name in ints:
+            if not (math.isfinite(number) and number == int(number)):
+                raise ConfigError(f"--param {name}: must be a whole number, got {value.strip()}")
+            out[name] = int(number)
+        else:
+            out[name] = number
     return out
 
 
@@ -161,12 +188,27 @@ def add_loop_options(
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of goal noise and demo operator")
     parser.add_argument(
-        "--goal-noise", type=float, default=None, metavar="M", help="goal noise std-dev [m]"
+        "--goal-noise",
+        type=float,
+        default=None,
+        metavar="M",
+        help=f"goal noise std-dev [m], 0-{MAX_GOAL_NOISE_M:g}",
     )
     parser.add_argument(
-        "--input-delay", type=float, default=None, metavar="S", help="injected input delay [s]"
+        "--input-delay",
+        type=float,
+        default=None,
+        metavar="S",
+        help=f"injected input delay [s], 0-{MAX_INPUT_DELAY_S:g}",
     )
-    parser.add_argument("--rate", type=float, default=None, metavar="HZ", help="loop rate [Hz]")
+    parser.add_argument(
+        "--rate",
+        type=float,
+        default=None,
+        metavar="HZ",
+        help=f"loop rate [Hz], {RATE_RANGE_HZ[0]:g}-{RATE_RANGE_HZ[1]:g} (default 30); the "
+        "simulated world advances 1/HZ s per tick",
+    )
     parser.add_argument(
         "--lost-policy",
         choices=[p.value for p in LostPolicy],
@@ -187,6 +229,15 @@ def add_loop_options(
         metavar="S",
         help="reset the task S seconds after each outcome, for the next trial "
         "(0: never; default 4 for serve, 0 for run, which stops at the outcome)",
+    )
+    parser.add_argument(
+        "--history",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="the operator's previous attempts (eq 6): read from FILE at start, each finished "
+        "segment appended to it (default: none, an empty history, so a run depends only on "
+        "its options and seed)",
     )
     parser.add_argument("--record", type=Path, default=None, metavar="DIR", help=record_help)
     parser.add_argument(
@@ -236,6 +287,8 @@ class LoopOptions:
         time_limit_s: a trial without an outcome after this long fails [s] (None: the
             task's default, 120 s).
         rerun: where a Rerun recording of the run goes, or None (docs/recordings.md).
+        history: the operator history file (`--history`), or None: an empty history, kept
+            nowhere.
     """
 
     source: SourceSpec
@@ -250,6 +303,7 @@ class LoopOptions:
     allow_partial: bool = False
     time_limit_s: float | None = None
     rerun: RerunTarget | None = None
+    history: Path | None = None
 
     @classmethod
     def of(cls, source: str = "demo", loop: LoopConfig | None = None, **kw: Any) -> LoopOptions:
@@ -259,6 +313,7 @@ class LoopOptions:
 
 def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOptions:
     """The checked loop options (`reset_after_s`: the command's default for --reset-after)."""
+    check_loop_bounds(args.rate, args.goal_noise, args.input_delay)  # the flags, named
     arb, loop_file = arbitration_config(args)
     flags: dict[str, Any] = {}
     if args.mode is not None:
@@ -278,12 +333,19 @@ def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOp
         raise ConfigError(f"--time-limit must be > 0 seconds, got {limit}")
     base = LoopConfig.from_dict({**loop_file, "arbitration": arb.to_dict()})
     loop = base.replace(**flags)
-    if args.goal_noise is not None and not args.goal_noise >= 0:
-        raise ConfigError(f"--goal-noise must be >= 0, got {args.goal_noise}")
+    # Rate and delay as the loop will run (a --config file's loop section may set them too).
+    check_loop_bounds(loop.rate_hz, args.goal_noise, loop.input_delay_s)
     if args.seed < 0:
         raise ConfigError(f"--seed must be >= 0, got {args.seed}")
+    source = parse_source(args.source)
+    if args.record_video and source.kind == "demo":
+        raise ConfigError(
+            "--record-video: the demo has no camera frames to record (its synthetic hand has "
+            "no pixels); record a webcam or a video source, or leave --record-video out"
+        )
+    history = check_history_path(args.history)
     return LoopOptions(
-        source=parse_source(args.source),
+        source=source,
         loop=loop,
         utensil=args.utensil,
         seed=args.seed,
@@ -299,4 +361,54 @@ def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOp
             if args.rerun is None and args.rerun_connect is None
             else RerunTarget(args.rerun, args.rerun_connect)
         ),
+        history=history,
     )
+
+
+def check_loop_bounds(
+    rate_hz: float | None, goal_noise_m: float | None, input_delay_s: float | None
+) -> None:
+    """`--rate`, `--goal-noise` and `--input-delay` within their documented bounds (module
+    docstring); None: not given.
+
+    Raises:
+        ConfigError: one line naming the option, its bound and why.
+    """
+    lo, hi = RATE_RANGE_HZ
+    if rate_hz is not None and not (math.isfinite(rate_hz) and lo <= rate_hz <= hi):
+        raise ConfigError(
+            f"--rate must be in {lo:g}-{hi:g} Hz, got {rate_hz:g}: the simulated world advances "
+            "1/rate s per tick, and outside this range either the arm's controllers or the "
+            "machine cannot keep up (docs/ARCHITECTURE.md, Runs you can trust)"
+        )
+    if goal_noise_m is not None and not (
+        math.isfinite(goal_noise_m) and 0 <= goal_noise_m <= MAX_GOAL_NOISE_M
+    ):
+        raise ConfigError(
+            f"--goal-noise must be in 0-{MAX_GOAL_NOISE_M:g} m, got {goal_noise_m:g}: beyond "
+            "it the robot's goal is typically further off than the bin is wide"
+        )
+    if input_delay_s is not None and not (
+        math.isfinite(input_delay_s) and 0 <= input_delay_s <= MAX_INPUT_DELAY_S
+    ):
+        raise ConfigError(
+            f"--input-delay must be in 0-{MAX_INPUT_DELAY_S:g} s, got {input_delay_s:g}: the "
+            "robot gets no hand input before the delay has passed, so a longer one leaves "
+            "it standing until the trial times out"
+        )
+
+
+def check_history_path(path: Path | None) -> Path | None:
+    """`--history FILE`: a file (or a new one) in a folder that exists.
+
+    Raises:
+        ConfigError: it names a folder, or its folder does not exist.
+    """
+    if path is None:
+        return None
+    path = Path(path)
+    if path.is_dir():
+        raise ConfigError(f"--history must name a file, got the folder {path}")
+    if not path.parent.is_dir():
+        raise ConfigError(f"--history: no such folder: {path.parent}")
+    return path

@@ -3,13 +3,17 @@
 Each session (or folder of sessions, or video file) is replayed in every requested mode
 (`app/replay/core.py` says how), and DIR gets `metrics.json` (per session and mode, then
 aggregated over sessions with the paper's tests) and PNG plots; one JSON line on stdout.
+A replay is open loop: the recorded hand never saw the robot it now drives, so it does not
+correct what that robot does; `metrics.json`, the JSON line and the plots say so (`"loop":
+"open"`). Only `--as-recorded` is closed loop (the sessions as the operator ran them).
 
     --robot simulated    a fresh PyBullet robot per mode (the default): where each mode
                          would have taken the robot
     --robot recorded     the robot the session recorded, open loop: the recorded mode gives
                          back the recorded arbitration exactly; another mode, what it would
                          have computed along the same robot path
-    --as-recorded        the sessions' own ticks, as they happened
+    --as-recorded        the sessions' own ticks, as they happened (each in its recorded
+                         mode: not with --modes)
     --retrack            re-run tracking on each session's video first
     --rerun FILE.rrd     also write a Rerun recording: one per episode (or video), every
                          replayed mode on one timeline (docs/recordings.md)
@@ -84,9 +88,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--modes",
-        default="S,DS",
+        default=None,
         help="comma-separated modes to replay in (default S,DS; any of "
-        f"{','.join(m.value for m in registered())})",
+        f"{','.join(m.value for m in registered())}; not with --as-recorded, which reports "
+        "each session in the mode it was recorded in)",
     )
     parser.add_argument(
         "--out", required=True, type=Path, help="output folder for metrics.json and plots"
@@ -141,7 +146,13 @@ def _expand(inputs: list[str]) -> tuple[Path, ...]:
 
 
 def command(args: argparse.Namespace) -> ReplayCommand:
-    modes = tuple(Mode.parse(m.strip()) for m in args.modes.split(",") if m.strip())
+    if args.modes is not None and args.as_recorded:
+        raise ConfigError(
+            "--modes does not apply to --as-recorded, which reports each session in the mode "
+            "it was recorded in; leave one of them out"
+        )
+    text = "S,DS" if args.modes is None else str(args.modes)
+    modes = tuple(Mode.parse(m.strip()) for m in text.split(",") if m.strip())
     if not modes:
         raise ConfigError("--modes is empty")
     if args.workers < 1:
@@ -151,11 +162,9 @@ def command(args: argparse.Namespace) -> ReplayCommand:
         arb, _ = arbitration_config(args)
     rerun: Path | None = None
     if args.rerun is not None:
-        rerun = Path(args.rerun)
-        if rerun.suffix != ".rrd":
-            raise ConfigError(f"--rerun must name a .rrd file, got {rerun}")
-        if not rerun.parent.is_dir():
-            raise ConfigError(f"--rerun: no such folder: {rerun.parent}")
+        from dsteleop.app.rrd.target import check_rrd_path
+
+        rerun = check_rrd_path(Path(args.rerun))
     return ReplayCommand(
         inputs=_expand(list(args.inputs)),
         modes=modes,
@@ -242,7 +251,7 @@ def _work(unit: Unit) -> list[Any]:
             sink_for=sinks,
         )
         return [core.Run(path.name, path.name, None, recorded_s, tr) for tr in traces]
-    session = read_session(path)
+    session = read_session(path, warn_truncated=False)  # `run` read it first, and said so
     if cmd.arbitration is not None:
         loop = {**session.meta.get("loop", {}), "arbitration": cmd.arbitration.to_dict()}
         session = dataclasses.replace(session, meta={**session.meta, "loop": loop})
@@ -348,7 +357,11 @@ def run(args: argparse.Namespace) -> int:
         log.warning("%s", note)
     recorded = sum(e["duration_s"] for e in entries)
     n_runs = 1 if cmd.as_recorded else len(names)
+    loop_kind = core.loop_kind(cmd.as_recorded)
+    log.info("replay: %s", core.LOOP_NOTES[loop_kind])
     metrics_json = {
+        "loop": loop_kind,
+        "loop_note": core.LOOP_NOTES[loop_kind],
         "wall_s": round(wall, 3),
         "recorded_s": round(recorded, 3),
         "speed_x_realtime": round(recorded * n_runs / wall, 2) if wall > 0 else None,
@@ -365,10 +378,11 @@ def run(args: argparse.Namespace) -> int:
     if cmd.plots:
         from dsteleop.app.replay.plots import plot_traces
 
-        plot_traces(all_traces, out)
+        plot_traces(all_traces, out, open_loop=loop_kind == "open")
     json.dump(
         {
             "metrics": str(out / "metrics.json"),
+            "loop": loop_kind,
             "wall_s": metrics_json["wall_s"],
             "inputs": len(cmd.inputs),
             "episodes": len(entries),

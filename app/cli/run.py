@@ -77,11 +77,11 @@ def run(args: argparse.Namespace) -> int:
     log.info(
         "run: source %s, mode %s, realtime %s", opts.source, opts.loop.mode.value, cmd.realtime
     )
-    history_dir = opts.record.parent if opts.record is not None else None
-    built = build(opts, realtime=cmd.realtime, history_dir=history_dir)
+    built = build(opts, realtime=cmd.realtime)
     loop = built.loop
     max_ticks = int(cmd.max_seconds * opts.loop.rate_hz)
     t0 = time.perf_counter()
+    ended = ""  # why the hand's source ended, read before closing it (which ends any source)
     with StopOnSignal(loop, (signal.SIGTERM,)) as stopper:
         try:
             if opts.record is not None:
@@ -90,7 +90,9 @@ def run(args: argparse.Namespace) -> int:
                 loop.run(max_ticks=max_ticks, until_outcome=True, until_finished=True)
             else:
                 loop.run_headless(max_ticks)
+            ended = loop.hand.end_reason if loop.hand.finished else ""
         finally:
+            timing = loop.timing_summary()
             built.close()
     wall = time.perf_counter() - t0
     if built.video is not None:
@@ -100,8 +102,8 @@ def run(args: argparse.Namespace) -> int:
         stopped_by = stopper.received
     elif loop.outcome:
         stopped_by = "outcome"
-    elif loop.hand.finished:
-        stopped_by = loop.hand.end_reason
+    elif ended:
+        stopped_by = ended
     else:
         stopped_by = "max-seconds"
     summary: dict[str, Any] = {
@@ -115,16 +117,10 @@ def run(args: argparse.Namespace) -> int:
         "source": built.source.kind,
         "events": [f"{k}:{e}" for k, e in loop.events_log],
         "session": None if opts.record is None else str(opts.record),
-        "timing": loop.rate.summary(),
+        "timing": timing,
     }
     if built.rerun is not None:
-        r = built.rerun
-        summary["rerun"] = {
-            "file": None if r.target.path is None else str(r.target.path),
-            "connect": r.target.connect,
-            "ticks_logged": r.logged,
-            "ticks_dropped": r.dropped,
-        }
+        summary["rerun"] = built.rerun.summary()
     json.dump(summary, sys.stdout)
     sys.stdout.write("\n")
     return 0

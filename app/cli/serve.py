@@ -12,9 +12,10 @@ the port (exit code 2), checked before the camera is opened.
 Trials follow one another: the task resets `--reset-after` seconds (default 4) after each
 outcome, and a trial without one after `--time-limit` seconds fails (`timeout`); each is an
 episode of the recording. `--record DIR` records from the first tick into a new folder
-`DIR/<date>-<time>-<mode>-<utensil>/`; the page's Recording Start writes there too (under
-`./sessions/` without `--record`). A video source plays from the loop's first tick and the
-page says when it ended (`--loop-video` plays it again).
+`DIR/<date>-<time>-<mode>-<utensil>/`; the page's Recording Start writes there too
+(without `--record`: under `default_record_root()`, the user's data folder, never the
+current one). A video source plays from the loop's first tick and the page says when it
+ended (`--loop-video` plays it again).
 
 The loop runs in the main thread at its fixed rate; the viewer has its own thread and reads
 the loop's tick records through a one-slot subscription. Ctrl-C (SIGINT) and SIGTERM stop the
@@ -28,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,9 +47,18 @@ from dsteleop.errors import ConfigError
 log = logging.getLogger(__name__)
 
 ALL_INTERFACES = ("0.0.0.0", "::", "")
-#: Where the page's "Start recording" writes without --record (never the sample sessions in
-#: the repository's recordings/).
-DEFAULT_RECORD_ROOT = Path("sessions")
+
+
+def default_record_root() -> Path:
+    """Where the page's Recording Start writes without --record: `dsteleop/sessions` in the
+    user's data folder (`$XDG_DATA_HOME`, else `~/.local/share`), an absolute path, so that
+    a session never lands in whatever folder `serve` was started from (nor among the
+    repository's sample sessions in recordings/)."""
+    base = os.environ.get("XDG_DATA_HOME") or ""
+    root = Path(base) if base and Path(base).is_absolute() else Path.home() / ".local" / "share"
+    return root / "dsteleop" / "sessions"
+
+
 #: serve resets the task this long after each outcome [s] (`--reset-after`).
 RESET_AFTER_S = 4.0
 
@@ -74,7 +85,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default_source="auto",
         record_help="record from the start, each session in a new folder "
         "DIR/<date>-<time>-<mode>-<utensil>/; the page's Recording Start writes there too "
-        f"(default {DEFAULT_RECORD_ROOT}/)",
+        "(default: $XDG_DATA_HOME/dsteleop/sessions, else ~/.local/share/dsteleop/sessions)",
     )
     parser.add_argument(
         "--host",
@@ -111,8 +122,8 @@ def run(args: argparse.Namespace) -> int:
         )
     check_port_free(cmd.host, cmd.port)  # before the camera is opened
     raise_priority()  # the loop ahead of other work on the machine (a local browser)
-    root = opts.record or DEFAULT_RECORD_ROOT
-    built = build(opts, realtime=True, export_scene=True, history_dir=opts.record, record_root=root)
+    root = opts.record or default_record_root()
+    built = build(opts, realtime=True, export_scene=True, record_root=root)
     loop, spec = built.loop, built.source
     viewer = None
     # Signals stop the loop from here on, also while closing: a second Ctrl-C during the
@@ -142,14 +153,18 @@ def run(args: argparse.Namespace) -> int:
         finally:
             if viewer is not None:
                 viewer.close()
-            recording = loop.recording
             built.close()  # the recording (complete), the camera, the robot, the Rerun log
+    recordings = [str(f) for f in loop.recordings]
     summary: dict[str, Any] = {
         "source": str(spec),
         "stopped_by": stopper.received or "end of run",
-        "recording": None if recording is None else str(recording),
-        "timing": loop.rate.summary(),
+        # The last session recorded (from --record or the page), and all of them.
+        "recording": recordings[-1] if recordings else None,
+        "recordings": recordings,
+        "timing": loop.timing_summary(),
     }
+    if built.rerun is not None:
+        summary["rerun"] = built.rerun.summary()
     if built.video is not None:
         summary["video"] = built.video.end_note() if built.video.ended else "playing"
     sys.stdout.write(json.dumps(summary) + "\n")

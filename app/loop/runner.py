@@ -24,6 +24,7 @@ import json
 import logging
 import sys
 import threading
+import time
 from collections import deque
 from collections.abc import Sequence
 from pathlib import Path
@@ -36,7 +37,12 @@ from dsteleop.app.loop import tick
 from dsteleop.app.loop.broadcast import Broadcaster
 from dsteleop.app.loop.config import LoopConfig
 from dsteleop.app.loop.controls import Controls, Requests
-from dsteleop.app.loop.timing import MonotonicClock, RateClock, put_this_thread_first
+from dsteleop.app.loop.timing import (
+    OVERRUN_WINDOW_S,
+    MonotonicClock,
+    RateClock,
+    put_this_thread_first,
+)
 from dsteleop.app.ports import Clock, HandInput, HumanInput, Observer, Plant
 from dsteleop.app.session.episodes import EpisodeSplitter
 from dsteleop.app.session.schema import RecordingStatus, TickRecord, encode_event
@@ -101,6 +107,9 @@ class TeleopLoop:
         self._recording_t0: float | None = None
         self._t_outcome: float | None = None
         self._stop = threading.Event()
+        self._overrun_said = False
+        #: Every session folder this loop recorded into, in order.
+        self.recordings: list[Path] = []
         # Frame-to-command latency [ms] of each new frame (its first command), recent ticks.
         self.latency_ms: deque[float] = deque(maxlen=18000)
         self._latency_seq = -1
@@ -215,6 +224,11 @@ class TeleopLoop:
             "mapping": self.hand.mapping_config(),
             "plant": self.plant.describe(),
             "operator_history": self.history.to_dict(),
+            # Where it persists: the file and the hash of its content now, or None (empty,
+            # kept nowhere: the default).
+            "operator_history_file": (
+                None if self._history_file is None else self._history_file.describe()
+            ),
         }
 
     def start_recording(self, folder: Path, extra: dict[str, Any] | None = None) -> Path:
@@ -233,6 +247,7 @@ class TeleopLoop:
             **(extra or {}),
         }
         self._recorder = Recorder(SessionWriter(folder, meta))
+        self.recordings.append(Path(folder))
         self._episodes = EpisodeSplitter()
         self._recording_t0 = None
         if self._frames is not None:
@@ -358,6 +373,7 @@ class TeleopLoop:
             "jitter_ms": jitter_s * 1e3,
             "tick_ms": (t_cmd - now) * 1e3,
             "overruns": float(self.rate.overruns),
+            "overrun_share": self.rate.overrun_share,
         }
         if inp is not None:
             out["capture_to_tracked_ms"] = (inp.t_tracked_s - inp.t_capture_s) * 1e3
@@ -408,6 +424,7 @@ class TeleopLoop:
                 timing = self.rate.wait()
                 self.tick(timing.t_start_s, timing.jitter_s)
                 self.rate.done()
+                self._say_overrun()
                 n += 1
                 if max_ticks is not None and n >= max_ticks:
                     break
@@ -420,6 +437,24 @@ class TeleopLoop:
         finally:
             sys.setswitchinterval(switch)
 
+    def _say_overrun(self) -> None:
+        """Log once when the loop stops keeping its rate (a sustained overrun share), and
+        once when it keeps it again."""
+        sustained = self.rate.sustained_overrun
+        if sustained == self._overrun_said:
+            return
+        self._overrun_said = sustained
+        if sustained:
+            log.warning(
+                "the loop does not keep %g Hz: %.0f%% of the ticks of the last %g s started "
+                "more than a period late (a busy machine, or a rate too high for it)",
+                self.config.rate_hz,
+                100 * self.rate.overrun_share,
+                OVERRUN_WINDOW_S,
+            )
+        else:
+            log.info("the loop keeps %g Hz again", self.config.rate_hz)
+
     def run_headless(self, max_ticks: int, tail_s: float = 0.5) -> None:
         """Tick on the (manual) clock as fast as possible until an outcome, the end of a file
         source (plus `tail_s`, so the halt shows in the record), or `max_ticks`."""
@@ -429,7 +464,9 @@ class TeleopLoop:
         for k in range(max_ticks):
             t = k * dt
             self.clock.sleep_until(t)
+            w0 = time.perf_counter()
             self.tick(t)
+            self.rate.count(time.perf_counter() - w0)
             if self.outcome:
                 break
             if end_at is None and self.hand.finished:

@@ -3,7 +3,11 @@
 `RateClock` schedules tick k at `t0 + k * period` on a monotonic clock. After a late tick it
 re-anchors (the next deadline is one period after the late start) instead of bursting to catch
 up, and counts the overrun. Every tick records its start-time jitter (actual start minus
-scheduled start) and its duration; `summary()` gives medians and tail percentiles.
+scheduled start) and its duration; `summary()` gives medians and tail percentiles, and the
+share of the last `OVERRUN_WINDOW_S` seconds of ticks that overran: at `SUSTAINED_OVERRUN`
+or more the loop does not keep its rate (`sustained_overrun`), which the run's summary, the
+log and the browser view's status say. A headless run (no schedule: as fast as the machine
+allows) counts its ticks and their durations through `count`.
 
 `ports.Clock` is the seam tests use to inject time: `MonotonicClock` is the real one; `ManualClock`
 advances only when told to.
@@ -139,6 +143,12 @@ class TickTiming:
     overrun: bool
 
 
+#: The window over which the overrun share is measured [s].
+OVERRUN_WINDOW_S = 10.0
+#: An overrun share over the window at least this large is sustained: the rate is not kept.
+SUSTAINED_OVERRUN = 0.1
+
+
 class RateClock:
     """Fixed-rate scheduling with re-anchoring after overruns, and its own statistics.
 
@@ -158,7 +168,9 @@ class RateClock:
         self.overruns = 0
         self._jitter = deque[float](maxlen=history)
         self._duration = deque[float](maxlen=history)
+        self._late = deque[bool](maxlen=max(1, round(OVERRUN_WINDOW_S * rate_hz)))
         self._last_start: float | None = None
+        self.headless = False
 
     def wait(self) -> TickTiming:
         """Sleep until the next tick is due; return its timing."""
@@ -178,6 +190,7 @@ class RateClock:
         else:
             self._next_s = due + self.period_s
         self._jitter.append(jitter)
+        self._late.append(overrun)
         timing = TickTiming(self._index, due, now, jitter, overrun)
         self._index += 1
         self._last_start = now
@@ -190,6 +203,24 @@ class RateClock:
         d = self.clock.now() - self._last_start
         self._duration.append(d)
         return d
+
+    def count(self, duration_s: float) -> None:
+        """Count a tick that ran unscheduled (headless), of this duration [s]."""
+        self.headless = True
+        self._index += 1
+        self._duration.append(duration_s)
+
+    @property
+    def overrun_share(self) -> float:
+        """The share of the last `OVERRUN_WINDOW_S` of scheduled ticks that overran (0 with
+        none yet)."""
+        return sum(self._late) / len(self._late) if self._late else 0.0
+
+    @property
+    def sustained_overrun(self) -> bool:
+        """The window is full and at least `SUSTAINED_OVERRUN` of it overran."""
+        full = len(self._late) == self._late.maxlen
+        return full and self.overrun_share >= SUSTAINED_OVERRUN
 
     def restart(self) -> None:
         """Start the schedule afresh at the next `wait` (statistics are kept)."""
@@ -204,12 +235,21 @@ class RateClock:
         """Forget the statistics so far (after a warm-up), keep the schedule."""
         self._jitter.clear()
         self._duration.clear()
+        self._late.clear()
         self.overruns = 0
         self._index = 0
 
     def summary(self) -> dict[str, float | int]:
-        """Jitter and duration statistics [ms] over the recent history, and counts."""
+        """Jitter and duration statistics [ms] over the recent history, and counts: ticks,
+        overruns, the overrun share of the last window and whether it is sustained;
+        a headless run's has `headless`, durations and no jitter."""
         out: dict[str, float | int] = {"ticks": self._index, "overruns": self.overruns}
+        if self.headless:
+            out["headless"] = True
+        else:
+            out["overrun_share"] = round(self.overrun_share, 4)
+            out["overrun_window_s"] = OVERRUN_WINDOW_S
+            out["sustained_overrun"] = self.sustained_overrun
         for name, values in (("jitter_ms", self._jitter), ("tick_ms", self._duration)):
             if values:
                 a = np.asarray(values) * 1e3

@@ -1,10 +1,12 @@
 """The PyBullet kitchen (robot + world + pick-and-place task) as a `ports.Plant`.
 
 A thin adapter from `dsteleop.robot.env.KitchenEnv`: `apply(X_next)` commands the pose and
-openness, steps 1/30 s of physics and the task, and reports the achieved palm state and the
-task's own typed phase, events and outcome. Everything needed to rebuild the same plant
-(utensil, seed, goal noise) is in `describe()`, which recordings store, so `plant_from_meta`
-gives replays the same world and the same noisy goals.
+openness, steps one loop period of physics and the task (1/rate s: the world keeps the
+loop's time, whatever its rate; `robot.arm.RobotConfig.for_period`), and reports the
+achieved palm state and the task's own typed phase, events and outcome. Everything needed
+to rebuild the same plant (utensil, seed, goal noise, control period) is in `describe()`,
+which recordings store, so `plant_from_meta` gives replays the same world and the same
+noisy goals.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import numpy as np
 
 from dsteleop.app.ports import PlantStep
 from dsteleop.arbitration import HandState
+from dsteleop.robot.arm import CONTROL_DT_S, RobotConfig
 from dsteleop.robot.env import EnvConfig, KitchenEnv
 from dsteleop.robot.hand_urdf import FINGER_NAMES
 from dsteleop.robot.scene import SceneGeometry
@@ -35,6 +38,8 @@ class KitchenPlant:
         export_scene: compute per-tick link poses for a viewer.
         time_limit_s: a trial without an outcome after this long fails (`timeout`) [s]
             (None: the task's default).
+        control_dt_s: the loop's period [s]: each `apply` advances the world this much
+            (None: the robot's default, 1/30 s).
     """
 
     finger_names: tuple[str, ...] = FINGER_NAMES
@@ -47,8 +52,11 @@ class KitchenPlant:
         goal_noise_rad: float | None = None,
         export_scene: bool = False,
         time_limit_s: float | None = None,
+        control_dt_s: float | None = None,
     ) -> None:
         cfg = EnvConfig()
+        if control_dt_s is not None:
+            cfg = dataclasses.replace(cfg, robot=RobotConfig.for_period(control_dt_s))
         task = cfg.task
         if time_limit_s is not None:
             task = dataclasses.replace(task, timeout_s=float(time_limit_s))
@@ -109,6 +117,7 @@ class KitchenPlant:
             "pick_true": _pose(task.pick_true),
             "place_true": _pose(task.place_true),
             "utensils": list(UTENSIL_NAMES),
+            "control_dt_s": self.config.robot.control_dt_s,
         }
 
     def scene(self) -> SceneGeometry:
@@ -145,5 +154,7 @@ def plant_from_meta(meta: dict[str, Any], export_scene: bool = False) -> Kitchen
         goal_noise_rad=meta.get("goal_noise_rad"),
         export_scene=export_scene,
         time_limit_s=(meta.get("task") or {}).get("timeout_s"),
+        # Sessions before the world kept the loop's rate stepped 1/30 s a tick whatever it was.
+        control_dt_s=float(meta.get("control_dt_s") or CONTROL_DT_S),
     )
     return plant

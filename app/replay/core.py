@@ -201,8 +201,29 @@ class Run(NamedTuple):
     trace: Trace
 
 
+#: What a replay's numbers are: "open" (a recorded hand replayed: it never saw the robot it
+#: now drives, so it corrects nothing that robot does) or "closed" (`as_recorded`: the
+#: sessions as the operator ran them, watching that robot).
+LOOP_NOTES = {
+    "open": "open loop: recorded hands replayed against a robot they never saw, so they "
+    "correct nothing it does; differences between modes are not what an operator using each "
+    "mode would achieve (compare the study's open-loop table)",
+    "closed": "closed loop: the sessions as the operator ran them",
+}
+
+
+def loop_kind(as_recorded: bool) -> str:
+    """ "closed" for the sessions as recorded, "open" for any replay (`LOOP_NOTES`)."""
+    return "closed" if as_recorded else "open"
+
+
 def episode_summaries(runs: Sequence[Run]) -> list[dict[str, Any]]:
-    """One entry per episode (in order of first appearance) with every mode's metrics."""
+    """One entry per episode (in order of first appearance) with every mode's metrics.
+
+    A recorded episode counts when it ended with an outcome (`Episode.counted`); a video
+    (no recorded episode) counts when every mode's run of it reached an outcome: one that
+    ended first (the clip ended before the task) is listed, never counted as a failure
+    (`end`: "video ended before the outcome")."""
     grouped: dict[str, list[Run]] = {}
     for r in runs:
         grouped.setdefault(r.name, []).append(r)
@@ -211,11 +232,16 @@ def episode_summaries(runs: Sequence[Run]) -> list[dict[str, Any]]:
         first = group[0]
         ep = first.episode
         entry = session_summary(name, first.recorded_s, [r.trace for r in group])
+        video_done = all(r.trace.outcome is not None for r in group)
         entry.update(
             session=first.session,
             episode=None if ep is None else ep.index,
-            end="video" if ep is None else ep.end,
-            counted=True if ep is None else ep.counted,
+            end=(
+                ("video" if video_done else "video ended before the outcome")
+                if ep is None
+                else ep.end
+            ),
+            counted=video_done if ep is None else ep.counted,
             recorded_outcome=None if ep is None or ep.outcome is None else ep.outcome.reason,
         )
         out.append(entry)
@@ -247,8 +273,8 @@ def aggregate(
     entries: Sequence[dict[str, Any]], modes: Sequence[str]
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Per-mode aggregates over the counted episodes (those that ended with an outcome, and
-    videos) and the paper's tests between modes, each with its n and whether it is
-    meaningful (`MIN_EPISODES` a mode at least)."""
+    videos whose every run reached one) and the paper's tests between modes, each with its n
+    and whether it is meaningful (`MIN_EPISODES` a mode at least)."""
     agg: dict[str, Any] = {}
     per: dict[str, dict[str, list[float]]] = {}
     counted = [e for e in entries if e.get("counted", True)]

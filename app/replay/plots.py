@@ -31,10 +31,17 @@ AXES = ("x", "y", "z")
 
 
 def _goals(tr: Trace) -> list[tuple[str, Array]]:
-    """The goals the robot knew in the run, in order: ("pick goal", p), ("place goal", p)."""
+    """The goals the robot knew in the run, in order: ("pick goal", p), ("place goal", p).
+
+    A tick's goal is the one it started with and its phase the one after it, so the tick
+    that grasps is the first of the place phase yet still holds the pick goal: a phase's goal
+    is read from the ticks that started in it (the phase of the tick before)."""
     out: list[tuple[str, Array]] = []
+    started_in = (Phase.PICK, *tr.phases[:-1])
     for phase in (Phase.PICK, Phase.PLACE):
-        rows = [k for k, ph in enumerate(tr.phases) if ph is phase and np.isfinite(tr.p_goal[k, 0])]
+        rows = [
+            k for k, ph in enumerate(started_in) if ph is phase and np.isfinite(tr.p_goal[k, 0])
+        ]
         if rows:
             out.append((f"{phase.value} goal", tr.p_goal[rows[0]]))
     return out
@@ -53,11 +60,16 @@ def _phase_spans(tr: Trace) -> list[tuple[Phase, float, float]]:
     return spans
 
 
-def trajectory_figure(name: str, traces: Sequence[Trace]) -> Figure:
+#: The title suffix of an open-loop replay's figures (`replay.core.LOOP_NOTES`).
+OPEN_LOOP = "open loop: recorded hand replayed"
+
+
+def trajectory_figure(name: str, traces: Sequence[Trace], open_loop: bool = False) -> Figure:
     """The paths of one episode, in the robot base frame with axes in metres: the operator's
     mapped hand and the robot's palm in each mode, from above (y-x) and from the front
     (y-z), with the goals the robot knew; and x, y, z over time with the task's phases
-    shaded (pick, place, done) and the goals as dashed lines."""
+    shaded (pick, place, done) and the goals as dashed lines; `open_loop`: the title says
+    the runs are open loop (a recorded hand replayed)."""
     import matplotlib.pyplot as plt
     from matplotlib.patches import Patch
 
@@ -96,14 +108,15 @@ def trajectory_figure(name: str, traces: Sequence[Trace]) -> Figure:
     over_time.set_ylabel("position [m] (dashed: goals)")
     over_time.set_title(f"{first.mode.value} run: position over time, phases shaded")
     over_time.grid(alpha=0.3)
-    fig.suptitle(f"{name}: operator and robot paths, robot base frame [m]")
+    loop = f" ({OPEN_LOOP})" if open_loop else ""
+    fig.suptitle(f"{name}: operator and robot paths, robot base frame [m]{loop}")
     fig.tight_layout()
     return fig
 
 
-def plot_traces(traces: Sequence[Trace], out: Path) -> list[Path]:
+def plot_traces(traces: Sequence[Trace], out: Path, open_loop: bool = False) -> list[Path]:
     """One figure per run (arbitration over time) and one per episode (`trajectory_figure`);
-    returns the files."""
+    returns the files. `open_loop`: every title says the runs are open loop."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -128,8 +141,9 @@ def plot_traces(traces: Sequence[Trace], out: Path) -> list[Path]:
             ax.set_ylabel(tr.dims[i], rotation=0, ha="right", va="center")
             ax.grid(alpha=0.3)
         axes[0, 0].legend(ncol=4, fontsize=8, loc="upper right")
+        loop = f"; {OPEN_LOOP}" if open_loop else ""
         axes[0, 0].set_title(
-            f"{tr.name} - {tr.mode.value}: alpha_i, P(H), P(R), B ({tr.outcome_name})"
+            f"{tr.name} - {tr.mode.value}: alpha_i, P(H), P(R), B ({tr.outcome_name}{loop})"
         )
         axes[-1, 0].set_xlabel("time [s]")
         fig.tight_layout()
@@ -142,7 +156,7 @@ def plot_traces(traces: Sequence[Trace], out: Path) -> list[Path]:
     for tr in traces:
         by_episode.setdefault(tr.name, []).append(tr)
     for name, trs in by_episode.items():
-        fig = trajectory_figure(name, trs)
+        fig = trajectory_figure(name, trs, open_loop)
         f = out / f"{_safe(name)}_trajectories.png"
         fig.savefig(f, dpi=80)
         plt.close(fig)

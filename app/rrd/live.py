@@ -24,7 +24,7 @@ import rerun as rr
 
 from dsteleop.app.rrd import layout
 from dsteleop.app.rrd import log as rlog
-from dsteleop.app.rrd.target import RerunTarget
+from dsteleop.app.rrd.target import RerunTarget, viewer_listening
 from dsteleop.app.session.schema import TickRecord
 from dsteleop.robot.scene import SceneGeometry
 
@@ -70,7 +70,17 @@ class RerunLogger:
         self.rec = rr.RecordingStream(layout.APPLICATION_ID, recording_id=recording_id)
         if target.path is not None:
             self.rec.save(target.path)
+        #: Whether a viewer listened at `--rerun-connect`'s address when the run started
+        #: (None: no address).
+        self.viewer_reachable: bool | None = None
         if target.connect is not None:
+            self.viewer_reachable = viewer_listening(target.connect)
+            if not self.viewer_reachable:
+                log.warning(
+                    "--rerun-connect: no Rerun viewer listens at %s (start `rerun` first); "
+                    "what this run sends is kept in memory and lost at the end unless one starts",
+                    target.connect,
+                )
             # Rerun's client sends from its own thread and buffers while no viewer is there.
             self.rec.connect_grpc(target.connect, flush_timeout_sec=0.5)
         self.rec.send_blueprint(rlog.blueprint([layout.LIVE_ROOT], camera=True))
@@ -140,6 +150,23 @@ class RerunLogger:
             ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 80])
             if ok:
                 out.append(rlog.CameraFrame(s.t_capture_s - t0, buf.tobytes()))
+        return out
+
+    def summary(self) -> dict[str, Any]:
+        """What a command's summary says about the recording: where it went, ticks logged
+        and dropped, and whether a viewer listened at `--rerun-connect`'s address (at the
+        start, and now)."""
+        out: dict[str, Any] = {
+            "file": None if self.target.path is None else str(self.target.path),
+            "connect": self.target.connect,
+            "ticks_logged": self.logged,
+            "ticks_dropped": self.dropped,
+        }
+        if self.target.connect is not None:
+            now = viewer_listening(self.target.connect)
+            out["viewer_reachable"] = bool(self.viewer_reachable or now)
+            if not out["viewer_reachable"]:
+                out["note"] = "no viewer listened: the logged ticks reached no one"
         return out
 
     def close(self) -> dict[str, int]:

@@ -123,8 +123,10 @@ def sessions_in(path: Path) -> list[Path]:
     return sorted(q for q in path.iterdir() if q.is_dir() and looks_like_session(q))
 
 
-def read_session(folder: Path) -> Session:
-    """Read a session folder; a truncated last tick line is skipped with a warning.
+def read_session(folder: Path, warn_truncated: bool = True) -> Session:
+    """Read a session folder; a truncated last tick line is skipped with a warning
+    (`warn_truncated=False`: silently, for a session read again after a first read warned;
+    `Session.truncated` says it either way).
 
     Raises:
         InputError: the folder is missing, is not a session (no metadata), is of an unknown
@@ -162,9 +164,10 @@ def read_session(folder: Path) -> Session:
                 raise ValueError("not an object")
         except ValueError as exc:
             if last:
-                log.warning(
-                    "%s: skipping a truncated last record (line %d)", folder / TICKS, lineno
-                )
+                if warn_truncated:
+                    log.warning(
+                        "%s: skipping a truncated last record (line %d)", folder / TICKS, lineno
+                    )
                 truncated = True
                 break
             raise InputError(f"{folder / TICKS}:{lineno}: corrupt record ({exc})") from exc

@@ -13,13 +13,17 @@ line that reached the file; the reader skips a truncated last line with a warnin
 `Recorder` writes on its own thread, so a slow disk never stalls the loop, and loses nothing:
 its queue holds every record until it is written.
 
-The operator's previous attempts (eq 6, last term) persist beside the sessions as
-`operator_history.json` in the recording root (`HistoryFile`).
+The operator's previous attempts (eq 6, last term) persist only where the user asks
+(`--history FILE`, `HistoryFile`): without it a run starts from an empty history and keeps
+none, so that it is a function of its inputs and seed. The history a session started from is
+in its `meta.json` (`operator_history`, and `operator_history_file`: the file's path and the
+SHA-256 of its content when it was read).
 """
 
 from __future__ import annotations
 
 import datetime
+import hashlib
 import json
 import logging
 import math
@@ -40,6 +44,7 @@ log = logging.getLogger(__name__)
 
 META = "meta.json"
 TICKS = "ticks.jsonl"
+#: The usual name of an operator history file (`--history FILE` may name any file).
 HISTORY_FILE = "operator_history.json"
 
 
@@ -202,23 +207,41 @@ class Recorder:
 
 
 class HistoryFile:
-    """The operator history kept in `<folder>/operator_history.json`."""
+    """An operator history kept in one JSON file (`--history FILE`).
 
-    def __init__(self, folder: Path) -> None:
-        self.path = Path(folder) / HISTORY_FILE
+    Args:
+        path: the file (created at the first save when it does not exist).
+
+    Attributes:
+        sha256: hex SHA-256 of the file's content as last loaded or saved (None before
+            either, or when there was no file).
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        self.sha256: str | None = None
 
     def load(self) -> OperatorHistory:
         """The saved history (empty when there is none).
 
         Raises:
-            InputError: the file exists but cannot be read.
+            InputError: the file exists but cannot be read, or is not an operator history.
         """
-        if not self.path.is_file():
+        if not self.path.exists():
+            self.sha256 = None
             return OperatorHistory()
         try:
-            return OperatorHistory.from_dict(json.loads(self.path.read_text()))
-        except (OSError, ValueError, KeyError) as exc:
-            raise InputError(f"{self.path}: unreadable operator history ({exc})") from exc
+            data = self.path.read_bytes()
+            history = OperatorHistory.from_dict(json.loads(data))
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+            raise InputError(f"{self.path}: unreadable operator history ({exc})") from None
+        self.sha256 = hashlib.sha256(data).hexdigest()
+        return history
+
+    def describe(self) -> dict[str, Any]:
+        """What a session's metadata says about it: the path and the content's hash."""
+        return {"path": str(self.path.resolve()), "sha256": self.sha256}
 
     def save(self, history: OperatorHistory) -> None:
         write_json_atomic(self.path, history.to_dict())
+        self.sha256 = hashlib.sha256(self.path.read_bytes()).hexdigest()

@@ -144,6 +144,9 @@ def _timing_items(
             out.append((label, f"{v:.0f} ms"))
     if timing.get("overruns"):
         out.append(("overruns", f"{int(timing['overruns'])}"))
+    share = timing.get("overrun_share")
+    if share:  # the share of the last 10 s of ticks that started a period late or more
+        out.append(("late 10 s", f"{100 * share:.0f} %"))
     return out
 
 

@@ -23,6 +23,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import errno
+import html
 import io
 import logging
 import math
@@ -76,6 +77,16 @@ class Slider:
     step: float
     initial: float
     integer: bool = False
+
+    def refusal(self, value: float) -> str:
+        """Why the page refuses `value` for this parameter ("" when it takes it): outside
+        [low, high], not a number, or not whole for an integer parameter."""
+        what = f"{self.name} {value:g} refused"
+        if not math.isfinite(value) or not self.low <= value <= self.high:
+            return f"{what}: must be in {self.low:g}-{self.high:g}; the loop keeps its value"
+        if self.integer and value != round(value):
+            return f"{what}: must be a whole number; the loop keeps its value"
+        return ""
 
 
 # The main hyper-parameters (docs/METHOD.md §6; ArbitrationConfig's defaults).
@@ -337,6 +348,9 @@ class Viewer:
                 self._controls.set_recording(event.target.value == "Start")
 
         with gui.add_folder("Parameters (live, recorded)", expand_by_default=False):
+            # Says why a value typed into a slider's box was refused (hidden otherwise).
+            self._param_note = gui.add_html('<div class="dst-note" data-refused=""></div>')
+            self._param_note.visible = False
             for s in sliders:
                 self._add_slider(s)
 
@@ -344,13 +358,30 @@ class Viewer:
         handle = self.server.gui.add_slider(
             s.label, min=s.low, max=s.high, step=s.step, initial_value=s.initial
         )
+        accepted = [float(s.initial)]  # what the loop was last given
 
         @handle.on_update
         def _(event: Any) -> None:
             if event.client is None:
+                return  # our own change (a refused value put back)
+            v = float(handle.value)
+            reason = s.refusal(v)
+            if reason:
+                # Refused at the widget: the loop, and so the recording, never sees it.
+                self._param_note.content = (
+                    f'<div class="dst-note" data-refused="{html.escape(s.name)}" '
+                    f'style="color:#c0392b">{html.escape(reason)}</div>'
+                )
+                self._param_note.visible = True
+                cast(Any, handle).value = accepted[0]  # back to what the loop has
+                with contextlib.suppress(Exception):  # a tab that left meanwhile
+                    event.client.add_notification(
+                        "Parameter refused", reason, auto_close_seconds=8.0, color="red"
+                    )
                 return
-            v = handle.value
-            self._controls.set_params(**{s.name: round(v) if s.integer else float(v)})
+            accepted[0] = v
+            self._param_note.visible = False
+            self._controls.set_params(**{s.name: round(v) if s.integer else v})
 
     def _ensure_plot(self, dims: tuple[str, ...]) -> None:
         if dims == self._dims:
