@@ -31,7 +31,7 @@ import logging
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from dsteleop.app.cli.options import (
     LoopOptions,
@@ -41,6 +41,9 @@ from dsteleop.app.cli.options import (
 )
 from dsteleop.app.cli.signals import StopOnSignal
 from dsteleop.errors import ConfigError
+
+if TYPE_CHECKING:
+    from dsteleop.tracking.mapping import MappingConfig
 
 log = logging.getLogger(__name__)
 
@@ -91,6 +94,14 @@ def command(args: argparse.Namespace) -> ServeCommand:
     return ServeCommand(options, str(args.host), int(args.port))
 
 
+def _mapping(fields: dict[str, Any]) -> MappingConfig | None:
+    """The hand's workspace mapping from its fields (`HandInput.mapping_config`, the
+    dataclass's own fields); None for a source without one."""
+    from dsteleop.tracking.mapping import MappingConfig
+
+    return MappingConfig(**fields) if fields else None
+
+
 def run(args: argparse.Namespace) -> int:
     cmd = command(args)
     opts = cmd.options
@@ -101,6 +112,7 @@ def run(args: argparse.Namespace) -> int:
     from dsteleop.app.cli.compose import build
     from dsteleop.app.loop.timing import raise_priority
     from dsteleop.app.session.writer import new_session_folder
+    from dsteleop.app.viewer.panel import source_label
     from dsteleop.app.viewer.server import Viewer, ViewerConfig, check_port_free, sliders_for
 
     if cmd.host in ALL_INTERFACES:
@@ -128,6 +140,9 @@ def run(args: argparse.Namespace) -> int:
                 sliders=sliders_for(
                     loop.config.arbitration, loop.plant.describe().get("goal_noise_m", 0.0)
                 ),
+                arbitration=loop.config.arbitration,
+                source=source_label(spec),
+                mapping=_mapping(loop.hand.mapping_config()),
             )
             if opts.record is not None:
                 utensil = str(loop.plant.describe().get("utensil", "task"))
