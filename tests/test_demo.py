@@ -32,7 +32,7 @@ def outcome(mode: Mode, seed: int) -> str:
 @pytest.mark.parametrize("mode", [Mode.DS, Mode.S, Mode.MANUAL])
 def test_the_demo_succeeds_on_most_seeds(mode: Mode) -> None:
     """Measured on this project's machines: at least 9 of seeds 0-9 succeed in each mode
-    (README). The test allows one more failure, for another CPU's physics."""
+    (docs/operator.md). The test allows one more failure, for another CPU's physics."""
     outcomes = [outcome(mode, s) for s in SEEDS]
     assert "none" not in outcomes, outcomes  # every run ends, with an outcome
     assert outcomes.count("success") >= 8, outcomes
