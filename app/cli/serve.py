@@ -94,7 +94,7 @@ def command(args: argparse.Namespace) -> ServeCommand:
     return ServeCommand(options, str(args.host), int(args.port))
 
 
-def _mapping(fields: dict[str, Any]) -> MappingConfig | None:
+def hand_mapping(fields: dict[str, Any]) -> MappingConfig | None:
     """The hand's workspace mapping from its fields (`HandInput.mapping_config`, the
     dataclass's own fields); None for a source without one."""
     from dsteleop.tracking.mapping import MappingConfig
@@ -142,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
                 ),
                 arbitration=loop.config.arbitration,
                 source=source_label(spec),
-                mapping=_mapping(loop.hand.mapping_config()),
+                mapping=hand_mapping(loop.hand.mapping_config()),
             )
             if opts.record is not None:
                 utensil = str(loop.plant.describe().get("utensil", "task"))

@@ -364,8 +364,11 @@ class Viewer:
         with side.add_tab("Hand → robot"):
             gui.add_html(mapping_html(self._mapping))
         side.dock_left()
-        side.set_width(330)
+        side.set_width(320)
         self._side = side
+        main = gui.main_panel
+        main.dock_right()  # the scene between the two panels, none of it under them
+        main.set_width(415)
 
     def _add_controls(self, utensils: Sequence[str], sliders: Sequence[Slider]) -> None:
         gui = self.server.gui
