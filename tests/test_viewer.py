@@ -335,6 +335,12 @@ def test_alpha_history_keeps_a_window(records: list[TickRecord]) -> None:
     assert len(t) == 20 and len(alphas) == 10
     assert t[0] == 0.0 and np.all(np.diff(t) > 0)
     np.testing.assert_allclose([a[-1] for a in alphas], _alpha(records[-1]))
+    # A view that updates less often than planned still shows only the window's span.
+    h = AlphaHistory(records[0].dims, 100, window_s=1.0)
+    for r in records[::3]:  # 10 Hz of a 30 Hz loop's ticks
+        h.push(r.t_s, _alpha(r))
+    t, *_ = h.data()
+    assert t[-1] == pytest.approx(1.0) and len(t) == 11, t  # of the 50 kept
 
 
 def _detected(records: list[TickRecord]) -> HumanInput:

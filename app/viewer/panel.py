@@ -66,7 +66,7 @@ PLOT_AXES: tuple[dict[str, Any], ...] = (
 )
 #: Said above the plot, in words.
 PLOT_CAPTION = (
-    "alpha per dimension over the last ~10 s: 0 the operator alone, 1 the robot alone "
+    "alpha per dimension over the last 10 s: 0 the operator alone, 1 the robot alone "
     "(the colour of each line is named below it)"
 )
 #: The plot's legend: the dimensions' names and colours; no values (uPlot shows values only
@@ -310,10 +310,13 @@ class AlphaHistory:
     Args:
         dims: dimension names (one series each).
         length: samples kept.
+        window_s: the time span shown [s]: older samples are kept but not shown (when the
+            view updates less often than planned, `length` samples span more).
     """
 
-    def __init__(self, dims: Sequence[str], length: int) -> None:
+    def __init__(self, dims: Sequence[str], length: int, window_s: float = math.inf) -> None:
         self.dims = tuple(dims)
+        self.window_s = float(window_s)
         self._t = np.full(length, np.nan)
         self._a = np.full((len(self.dims), length), np.nan)
         self._n = 0
@@ -327,9 +330,11 @@ class AlphaHistory:
         self._n += 1
 
     def data(self) -> tuple[Array, ...]:
-        """(t, alpha_0, ..., alpha_D-1) over the filled part of the window, t from 0 at the
-        oldest sample shown."""
+        """(t, alpha_0, ..., alpha_D-1) over the filled part of the window and the last
+        `window_s`, t from 0 at the oldest sample shown."""
         k = min(self._n, self._t.size)
+        if k:
+            k = int(np.count_nonzero(self._t[-k:] >= self._t[-1] - self.window_s))
         t = self._t[-k:] - (self._t[-k] if k else 0.0)
         return (t, *(row[-k:] for row in self._a))
 

@@ -456,7 +456,7 @@ class Viewer:
             return
         self._dims = dims
         n = max(2, round(self.config.plot_window_s * self.config.panel_hz))
-        self._history = AlphaHistory(dims, n)
+        self._history = AlphaHistory(dims, n, self.config.plot_window_s)
         if self._plot is not None:
             self._plot.remove()
         with self._plot_folder:
