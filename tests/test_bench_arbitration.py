@@ -1,5 +1,5 @@
 """`dsteleop bench --only arbitration`: the JSON it prints (the timings themselves are figures
-for the README, never asserted: these machines are shared and noisy)."""
+for docs/benchmarks.md, never asserted: these machines are shared and noisy)."""
 
 from __future__ import annotations
 

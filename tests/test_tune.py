@@ -389,7 +389,7 @@ def check_best_json_round_trips_through_sim(out: Path, tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_quick_bench_runs_the_same_trials_alone_and_on_1_and_2_ray_workers() -> None:
-    """The figures are the README's, never asserted; the bench itself checks that every Ray
+    """The figures are docs/benchmarks.md's, never asserted; the bench itself checks that every Ray
     run evaluated the configurations the trial function ran alone."""
     r = subprocess.run(
         [sys.executable, "-m", "dsteleop.app.cli.main", "bench", "--only", "tune", "--quick"],

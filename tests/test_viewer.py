@@ -209,6 +209,111 @@ def test_status_shows_the_recording_with_its_time_and_episodes(
     assert 'data-recording=""' in status_html(dataclasses.replace(last, recording=None))
 
 
+def test_status_names_the_source(records: list[TickRecord]) -> None:
+    """Issue 23, item 5: the page says what drives the hand (the demo is no camera)."""
+    from dsteleop.app.viewer.panel import source_label, status_html
+    from dsteleop.tracking.sources import parse_source
+
+    assert source_label(parse_source("demo")) == "demo"
+    assert source_label(parse_source("webcam:1")) == "camera 1"
+    assert source_label(parse_source("video:/data/clips/wave.mp4")) == "video wave.mp4"
+    text = status_html(_tracking(records), source="demo", info={"impairments": "none"})
+    assert 'data-source="demo"' in text and "synthetic operator, no camera" in text
+    assert "impairments" in text
+    text = status_html(_tracking(records), source="camera 0")
+    assert 'data-source="camera 0"' in text and "synthetic" not in text
+
+
+def test_tally_counts_each_trial_once_with_its_outcome_and_time(
+    finished_recording: list[TickRecord],
+) -> None:
+    """Issue 23, item 5: a running tally of trials (outcome, time) since the view started,
+    from the records of a real run to its outcome, seen twice (the tick count restarts)."""
+    from dsteleop.app.viewer.panel import TrialTally, tally_html
+
+    tally = TrialTally()
+    assert 'data-trials="0"' in tally_html(tally)
+    ended = [t for r in finished_recording if (t := tally.observe(r)) is not None]
+    outcome = finished_recording[-1].outcome
+    assert outcome is not None and len(ended) == 1  # 30 records carry it: counted once
+    assert ended[0].success == outcome.success and ended[0].time_s == outcome.time_s
+    for r in finished_recording:  # the next trial: the task reset, ticks from 0 again
+        tally.observe(r)
+    assert [t.number for t in tally.trials] == [1, 2]
+    text = tally_html(tally)
+    word = "success" if outcome.success else "failure"
+    assert 'data-trials="2"' in text and f'data-successes="{2 * outcome.success}"' in text
+    assert text.count(f'data-outcome="{word}"') == 2
+    assert f'data-time-s="{outcome.time_s:.1f}"' in text and f"{outcome.time_s:.1f} s" in text
+
+
+def test_mapping_help_reads_the_mapping() -> None:
+    """Issue 23, item 5: which hand motion moves which robot axis, as the mapping maps it."""
+    from dsteleop.app.viewer.panel import mapping_html, mapping_rows
+    from dsteleop.arbitration.se3 import HandState
+    from dsteleop.tracking.mapping import MappingConfig, WorkspaceMapping
+
+    rows = mapping_rows(MappingConfig())
+    # What the rows say, checked against what the mapping does: the camera-frame motion of
+    # the hand (OpenCV axes: x image right, y down, z away from the camera) that moves the
+    # robot 6 cm along each base axis. A webcam facing the operator shows their left on the
+    # image's right.
+    words = {"towards the camera": (0, 0, -1), "to your left": (1, 0, 0), "up": (0, -1, 0)}
+    mapping = WorkspaceMapping(MappingConfig())
+    start = HandState(np.array([0.45, 0.0, 0.3]), np.eye(3), np.zeros(4))
+    anchor = np.array([0.0, 0.0, 0.5])
+    mapping.anchor_at(anchor, np.eye(3), start)
+    for axis, (hand, robot) in enumerate(rows[:3]):
+        moved = HandState(start.position + 0.06 * np.eye(3)[axis], np.eye(3), np.zeros(4))
+        d_cam = mapping.to_camera(moved)[0] - anchor
+        said = next(v for k, v in words.items() if hand.endswith(k))
+        np.testing.assert_allclose(d_cam, 0.04 * np.array(said), atol=1e-12)
+        assert f"+{'xyz'[axis]}" in robot and "x1.5" in robot
+    assert "towards the camera" in rows[0][0] and "to your left" in rows[1][0]
+    assert "up" in rows[2][0]
+    # A camera looking where the operator looks: forward is away from it.
+    assert "away from the camera" in mapping_rows(MappingConfig(mirror=False))[0][0]
+    assert ("open / close ring + little (mean)", "robot ring") in rows
+    assert "no hand-to-robot mapping" in mapping_html(None)
+
+
+def test_legend_says_what_eq_4_to_8_compute() -> None:
+    """Issue 23, item 5: P(H), P(R) and B described as eq (4)-(8) define them."""
+    from dsteleop.app.viewer.panel import legend_html
+
+    text = re.sub(r"<[^>]+>", "", legend_html())
+    assert "how likely" not in text
+    assert "operator's own pose would imply" in text and "eq 4-5" in text
+    assert "the same for the robot's pose" in text
+    assert "willingness (eq 7)" in text and "speed change" in text
+    assert "(eq 8)" in text
+
+
+def test_alpha_plot_legend_and_axes_fit() -> None:
+    """Issue 23, item 5: the plot's legend names the lines without "--" values, and the y
+    label fits the plot's height (uPlot cuts a label longer than the plot at both ends)."""
+    from dsteleop.app.viewer.panel import PLOT_AXES, PLOT_LEGEND
+
+    assert PLOT_LEGEND == {"show": True, "live": False}
+    x_axis, y_axis = (a["label"] for a in PLOT_AXES)
+    assert "[s]" in x_axis and "robot" in y_axis and len(y_axis) <= 20
+
+
+def test_sliders_ranges_are_valid_and_bad_values_are_refused_with_the_reason() -> None:
+    """Issue 23, item 5: a GUI value the loop would refuse is refused at the widget, with
+    the reason; every value a slider can reach is one the loop takes."""
+    from dsteleop.app.viewer.server import DEFAULT_SLIDERS, Slider, refusal
+    from dsteleop.arbitration import ArbitrationConfig
+
+    cfg = ArbitrationConfig()
+    for s in DEFAULT_SLIDERS:
+        assert refusal(s, s.low, cfg) is None and refusal(s, s.high, cfg) is None, s
+        assert "must be in" in str(refusal(s, s.high + 1, cfg))
+    wide = Slider("p", "p", 0.5, 20.0, 0.5, 4.0)
+    assert "p must be > 1" in str(refusal(wide, 1.0, cfg))  # ArbitrationConfig's own reason
+    assert "whole number" in str(refusal(DEFAULT_SLIDERS[4], 2.5, cfg))
+
+
 def test_camera_image_fits_either_orientation() -> None:
     from dsteleop.app.viewer.panel import CAMERA_BOX_PX, fit
 
@@ -230,6 +335,12 @@ def test_alpha_history_keeps_a_window(records: list[TickRecord]) -> None:
     assert len(t) == 20 and len(alphas) == 10
     assert t[0] == 0.0 and np.all(np.diff(t) > 0)
     np.testing.assert_allclose([a[-1] for a in alphas], _alpha(records[-1]))
+    # A view that updates less often than planned still shows only the window's span.
+    h = AlphaHistory(records[0].dims, 100, window_s=1.0)
+    for r in records[::3]:  # 10 Hz of a 30 Hz loop's ticks
+        h.push(r.t_s, _alpha(r))
+    t, *_ = h.data()
+    assert t[-1] == pytest.approx(1.0) and len(t) == 11, t  # of the 50 kept
 
 
 def _detected(records: list[TickRecord]) -> HumanInput:
@@ -505,6 +616,27 @@ def test_viewer_follows_a_live_loop_and_never_posts_on_its_own() -> None:
         viewer.close()
         loop.close()
     assert viewer.server is None
+
+
+def test_viewer_posts_valid_values_and_shows_why_it_refuses_others() -> None:
+    from dsteleop.app.loop.broadcast import Broadcaster
+    from dsteleop.app.loop.controls import Controls
+    from dsteleop.app.viewer.server import DEFAULT_SLIDERS, Viewer, ViewerConfig
+
+    controls = Controls()
+    viewer = Viewer(Broadcaster(), controls, None, ViewerConfig(port=0), source="demo")
+    kappa = DEFAULT_SLIDERS[0]
+    try:
+        assert not viewer.offer_param(kappa, 0.0)
+        assert controls.take().empty  # nothing reached the loop
+        note = viewer._refused_note.content
+        assert 'data-refused="kappa"' in note and "must be in [0.5, 20]" in note
+        assert "the loop keeps 4" in note
+        assert viewer.offer_param(kappa, 6.5)
+        assert controls.take().params == {"kappa": 6.5}
+        assert 'data-refused=""' in viewer._refused_note.content  # the reason is cleared
+    finally:
+        viewer.close()
 
 
 def test_port_in_use_is_one_clear_error(busy_port: int) -> None:

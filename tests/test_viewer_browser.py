@@ -3,7 +3,10 @@
 Everything is checked from the page itself (the DOM Viser renders, and the WebGL canvas):
 the gauges are present and their values change, the scene is drawn, a mode chosen in the
 page reaches the loop, two tabs see the same session while the loop keeps its rate, and with
-a video source the camera panel shows the video's pixels (not the grey canvas).
+a video source the camera panel shows the video's pixels (not the grey canvas). What the
+page says it shows (issue 23, item 5): the source in the status line, the tally of trials
+after a success, the legend's wording; at 1366 x 768 every control is on screen, and a value
+typed into a parameter's box that the loop would refuse is refused there, with the reason.
 Uses Debian's system Chromium (`/usr/bin/chromium`, installed by .ci/run); without it the
 tests skip with the reason. WebGL runs in software there, so waits are generous but bounded.
 A screenshot is saved under test-artifacts/; `DSTELEOP_UPDATE_SCREENSHOT=1` also copies it to
@@ -44,6 +47,7 @@ CHROMIUM_ARGS = [
 ]
 DIMS = ["x", "y", "z", "roll", "pitch", "yaw", "thumb", "index", "middle", "ring"]
 PAGE_TIMEOUT_MS = 90_000  # software WebGL on two shared cores: slow, but bounded
+SMALL_WINDOW = (1366, 768)  # a common laptop screen: the controls must fit it
 
 pytestmark = [
     pytest.mark.browser,
@@ -160,7 +164,7 @@ def _wait(pred: Callable[[], bool], timeout_s: float, what: str, page: Page) -> 
 
 
 def test_page_shows_the_scene_and_live_gauges(served: str, browser: Browser) -> None:
-    page = _open(browser, served)
+    page = _open(browser, served, *SMALL_WINDOW)
     try:
         _wait(lambda: _scene_drawn(page), 90.0, "the arm in the 3-D view", page)
         first = _gauges(page)
@@ -242,6 +246,15 @@ def test_status_after_a_success_and_the_recording_indicator(
     try:
         legend = page.locator(".dst-legend").inner_text()
         assert all(w in legend for w in ("P(H)", "P(R)", "B", "robot", "operator")), legend
+        # ... as eq (4)-(8) define them, not as probabilities of who is in control.
+        for words in ("operator's own pose would imply", "the same for the robot's pose",
+                      "willingness (eq 7)", "(eq 8)"):  # fmt: skip
+            assert words in legend, (words, legend)
+        assert "how likely" not in legend, legend
+        # The source: the demo, said to be no camera.
+        status = page.locator(".dst-status")
+        assert status.get_attribute("data-source") == "demo"
+        assert "synthetic operator, no camera" in status.inner_text()
         rec = page.locator(".dst-rec")
         rec.wait_for(state="attached")
         data = rec.evaluate("e => ({...e.dataset})")
@@ -261,6 +274,18 @@ def test_status_after_a_success_and_the_recording_indicator(
         line = snap["line"]
         assert line.startswith("finished") and "success" in line and "lost" not in line, line
         assert snap["colour"] == "rgb(31, 157, 85)", snap  # green
+        # The tally has the trial: a success, its time from the trial's start.
+        tally = page.locator(".dst-tally")
+        _wait(
+            lambda: int(tally.get_attribute("data-successes") or 0) >= 1,
+            10.0,
+            "the success in the tally",
+            page,
+        )
+        newest = page.locator(".dst-trial").first.evaluate("e => ({...e.dataset})")
+        assert newest["outcome"] == "success" and newest["mode"] == "DS", newest
+        assert 1.0 < float(newest["timeS"]) < 120.0, newest
+        assert "success" in tally.inner_text() and "Trials since start" in tally.inner_text()
         _wait(
             lambda: int(rec.evaluate("e => e.dataset.episodes")) >= 1,
             10.0,
@@ -268,6 +293,52 @@ def test_status_after_a_success_and_the_recording_indicator(
             page,
         )
         assert float(rec.evaluate("e => e.dataset.elapsedS")) > 5.0
+    finally:
+        page.close()
+
+
+def _on_screen(page: Page, locator: Any) -> bool:
+    box = locator.bounding_box()
+    w, h = SMALL_WINDOW
+    return bool(box and box["x"] >= 0 and box["y"] >= 0 and box["x"] + box["width"] <= w
+                and box["y"] + box["height"] <= h)  # fmt: skip
+
+
+def test_controls_fit_a_laptop_window_and_bad_values_are_refused_with_the_reason(
+    served: str, browser: Browser
+) -> None:
+    """At 1366 x 768 every control is on screen without scrolling; the plot's legend names
+    the lines (no "--"); the mapping help is one click away; a value typed into a
+    parameter's box that the loop would refuse is refused at the widget, the reason shown."""
+    page = _open(browser, served, *SMALL_WINDOW)
+    try:
+        boxes = page.locator("input.mantine-NumberInput-input")
+        controls = {
+            "mode": page.get_by_role("combobox").first,
+            "reset": page.get_by_role("button", name="Reset task"),
+            "record": page.get_by_role("button", name="Start", exact=True),
+            "first parameter": boxes.first,
+            "last parameter": boxes.last,
+        }
+        assert boxes.count() == 6
+        for name, control in controls.items():
+            assert _on_screen(page, control), (name, control.bounding_box())
+        assert page.evaluate("window.scrollY") == 0
+        legend = page.locator(".u-legend").first
+        legend.wait_for(state="attached")
+        text = legend.inner_text()
+        assert all(d in text for d in DIMS) and "--" not in text, text
+        page.get_by_role("tab", name="Hand → robot").click()
+        help_text = page.locator(".dst-mapping").inner_text()
+        assert "towards the camera" in help_text and "robot +x" in help_text, help_text
+        page.get_by_role("tab", name="Controls").click()
+        kappa = page.locator("input.mantine-NumberInput-input").first
+        kappa.fill("0")  # outside kappa's range (0.5 to 20); the box keeps focus
+        note = page.locator(".dst-refused")
+        _wait(lambda: note.get_attribute("data-refused") == "kappa", 20.0, "the refusal", page)
+        assert "kappa not applied: kappa must be in [0.5, 20]" in note.inner_text()
+        assert "the loop keeps" in note.inner_text()
+        assert _on_screen(page, note)
     finally:
         page.close()
 

@@ -123,7 +123,7 @@ def run_config(
     """One configuration: the demo session, `clients` clients of `kind`, measured."""
     from dsteleop.app.cli.compose import build
     from dsteleop.app.cli.options import LoopOptions
-    from dsteleop.app.cli.serve import RESET_AFTER_S
+    from dsteleop.app.cli.serve import RESET_AFTER_S, hand_mapping
     from dsteleop.app.loop import LoopConfig
     from dsteleop.app.loop.timing import raise_priority
     from dsteleop.app.viewer.server import Viewer, ViewerConfig
@@ -140,6 +140,9 @@ def run_config(
         loop.controls,
         scene=loop.plant.scene(),
         config=ViewerConfig(port=0, scene_hz=scene_hz),
+        arbitration=loop.config.arbitration,
+        source="demo",
+        mapping=hand_mapping(loop.hand.mapping_config()),
     )
     viewer.start()
     runner = threading.Thread(target=loop.run, name="bench-loop", daemon=True)

@@ -33,7 +33,7 @@ import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from dsteleop.app.cli.options import (
     LoopOptions,
@@ -42,7 +42,11 @@ from dsteleop.app.cli.options import (
     loop_options,
 )
 from dsteleop.app.cli.signals import StopOnSignal
+from dsteleop.app.inputs.demo import DemoConfig
 from dsteleop.errors import ConfigError
+
+if TYPE_CHECKING:
+    from dsteleop.tracking.mapping import MappingConfig
 
 log = logging.getLogger(__name__)
 
@@ -102,6 +106,14 @@ def command(args: argparse.Namespace) -> ServeCommand:
     return ServeCommand(options, str(args.host), int(args.port))
 
 
+def hand_mapping(fields: dict[str, Any]) -> MappingConfig | None:
+    """The hand's workspace mapping from its fields (`HandInput.mapping_config`, the
+    dataclass's own fields); None for a source without one."""
+    from dsteleop.tracking.mapping import MappingConfig
+
+    return MappingConfig(**fields) if fields else None
+
+
 def run(args: argparse.Namespace) -> int:
     cmd = command(args)
     opts = cmd.options
@@ -112,6 +124,7 @@ def run(args: argparse.Namespace) -> int:
     from dsteleop.app.cli.compose import build
     from dsteleop.app.loop.timing import raise_priority
     from dsteleop.app.session.writer import new_session_folder
+    from dsteleop.app.viewer.panel import source_label
     from dsteleop.app.viewer.server import Viewer, ViewerConfig, check_port_free, sliders_for
 
     if cmd.host in ALL_INTERFACES:
@@ -139,6 +152,10 @@ def run(args: argparse.Namespace) -> int:
                 sliders=sliders_for(
                     loop.config.arbitration, loop.plant.describe().get("goal_noise_m", 0.0)
                 ),
+                arbitration=loop.config.arbitration,
+                source=source_label(spec),
+                mapping=hand_mapping(loop.hand.mapping_config()),
+                info={"world": DemoConfig().describe()} if spec.kind == "demo" else None,
             )
             if opts.record is not None:
                 utensil = str(loop.plant.describe().get("utensil", "task"))

@@ -8,6 +8,17 @@ robot's authority) and whose blue share is 1 - alpha (the operator's); ticks on 
 P(H) (blue), P(R) (orange) and B (black), and the numbers follow. Every gauge row carries its
 values as `data-*` attributes (`data-dim`, `data-alpha`, `data-ph`, `data-pr`, `data-b`) so
 that a test, or an operator's own tooling, can read them from the page.
+
+What the marks are (docs/METHOD.md): P(H) is the expected control allocation of the
+operator's own pose, eq (4)-(5): the robot's share alpha that the hand's distance from the
+goal, relative to the segment's length, would imply (1 at the goal); P(R) the same for the
+robot's pose; B the willingness of eq (7), near 1 when the operator's expected speed change
+psi_human is of the size the robot's psi_robot expects and towards 0 when it is far smaller or
+larger; alpha = P(H) + (P(R) - P(H)) B, eq (8).
+
+Besides the gauges: the source in the status line (`source_label`), a tally of the trials
+since the page's session started (`TrialTally`), and what each hand motion does to the robot
+(`mapping_rows`, read from the workspace mapping's own axes).
 """
 
 from __future__ import annotations
@@ -19,6 +30,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from importlib import resources
+from pathlib import Path
 from string import Template
 from typing import Any
 
@@ -28,6 +40,8 @@ from numpy.typing import NDArray
 from dsteleop.app.ports import HumanInput
 from dsteleop.app.session.schema import RecordingStatus, Status, TickRecord
 from dsteleop.arbitration import ArbitrationStep
+from dsteleop.tracking.mapping import ROBOT_FINGERS, MappingConfig
+from dsteleop.tracking.sources import SourceSpec
 
 Array = NDArray[np.float64]
 Image = NDArray[np.uint8]
@@ -44,11 +58,20 @@ DIM_COLOURS: tuple[str, ...] = (
 #: The camera image fits this box [px] (width, height) whatever its orientation: a portrait
 #: phone frame must not push the controls below it off the screen.
 CAMERA_BOX_PX = (320, 300)
-#: The alpha plot's axes, with their units.
+#: The alpha plot's axes, with their units: labels short enough for the plot's height (a
+#: longer y label is cut at both ends), the rest said in `PLOT_CAPTION`.
 PLOT_AXES: tuple[dict[str, Any], ...] = (
-    {"label": "time over the last 10 s [s]"},
-    {"label": "alpha: robot's share (0 operator, 1 robot)"},
+    {"label": "t [s]", "labelSize": 18},
+    {"label": "alpha (1 = robot)", "labelSize": 18, "size": 36},
 )
+#: Said above the plot, in words.
+PLOT_CAPTION = (
+    "alpha per dimension over the last 10 s: 0 the operator alone, 1 the robot alone "
+    "(the colour of each line is named below it)"
+)
+#: The plot's legend: the dimensions' names and colours; no values (uPlot shows values only
+#: under a cursor and "--" otherwise).
+PLOT_LEGEND: dict[str, Any] = {"show": True, "live": False}
 # MediaPipe Hands' 21-landmark skeleton (wrist 0; thumb 1-4; index 5-8; ...; little 17-20).
 HAND_CONNECTIONS: tuple[tuple[int, int], ...] = (
     (0, 1), (1, 2), (2, 3), (3, 4), (0, 5), (5, 6), (6, 7), (7, 8), (5, 9), (9, 10),
@@ -205,29 +228,58 @@ def recording_html(rec: RecordingStatus | None) -> str:
     )
 
 
+def source_label(spec: SourceSpec) -> str:
+    """What drives the hand, in the status line's words: `demo` (the built-in synthetic
+    operator: no camera), `camera N`, `video NAME` (the file's name), `images NAME`,
+    `synthetic hand`, or the spec itself for anything else (`auto` is resolved before)."""
+    if spec.kind == "demo":
+        return "demo"
+    if spec.kind == "webcam":
+        return f"camera {spec.target}"
+    if spec.kind in ("video", "images"):
+        return f"{spec.kind} {Path(spec.target).name or spec.target}"
+    if spec.kind == "synthetic":
+        return "synthetic hand"
+    return str(spec)
+
+
+#: What the status line adds to the source label of the demo.
+DEMO_NOTE = "synthetic operator, no camera"
+
+
 def status_html(
     record: TickRecord,
     viewer: Mapping[str, Any] | None = None,
     rate_hz: float | None = None,
     jitter_max_ms: float | None = None,
+    source: str = "",
+    info: Mapping[str, str] | None = None,
 ) -> str:
-    """Mode, tracking state and reason, timing, task phase and outcome, viewer counters.
+    """Source, mode, tracking state and reason, timing, task phase and outcome, counters.
 
     Args:
         record: the tick shown.
         viewer: the view's own counters (tabs, skipped records).
         rate_hz: the loop rate measured from recent ticks [Hz], if known.
         jitter_max_ms: the largest start-time jitter of the last second's ticks [ms].
+        source: what drives the hand (`source_label`), "" if not known.
+        info: fixed facts about the session shown after the mode (name -> text), e.g. the
+            operator's impairments.
     """
     view = status_view(record)
     detail = f" &mdash; {html.escape(view.detail)}" if view.detail else ""
     outcome = record.outcome
     outcome_text = "" if outcome is None else ("success" if outcome.success else "failure")
     out_col = {"success": "#1f9d55", "failure": "#c0392b"}.get(outcome_text, "#555")
-    items = [
+    items: list[tuple[str, str]] = []
+    if source:
+        note = f" ({DEMO_NOTE})" if source == "demo" else ""
+        items.append(("source", f"<b>{html.escape(source)}</b>{note}"))
+    items += [
         ("mode", f"<b>{html.escape(record.mode.value)}</b>"),
         ("phase", html.escape(record.phase.value)),
     ]
+    items += [(html.escape(k), html.escape(v)) for k, v in (info or {}).items()]
     if outcome_text:
         items.append(("outcome", f'<b style="color:{out_col}">{outcome_text}</b>'))
     timing = record.timing
@@ -240,6 +292,7 @@ def status_html(
         f'<span class="dst-item"><span class="dst-key">{k}</span> {v}</span>' for k, v in items
     )
     return _template("status.html").substitute(
+        source=html.escape(source),
         status=html.escape(view.word),
         reason_attr=html.escape(view.detail),
         mode=html.escape(record.mode.value),
@@ -260,10 +313,13 @@ class AlphaHistory:
     Args:
         dims: dimension names (one series each).
         length: samples kept.
+        window_s: the time span shown [s]: older samples are kept but not shown (when the
+            view updates less often than planned, `length` samples span more).
     """
 
-    def __init__(self, dims: Sequence[str], length: int) -> None:
+    def __init__(self, dims: Sequence[str], length: int, window_s: float = math.inf) -> None:
         self.dims = tuple(dims)
+        self.window_s = float(window_s)
         self._t = np.full(length, np.nan)
         self._a = np.full((len(self.dims), length), np.nan)
         self._n = 0
@@ -277,16 +333,146 @@ class AlphaHistory:
         self._n += 1
 
     def data(self) -> tuple[Array, ...]:
-        """(t, alpha_0, ..., alpha_D-1) over the filled part of the window, t from 0 at the
-        oldest sample shown."""
+        """(t, alpha_0, ..., alpha_D-1) over the filled part of the window and the last
+        `window_s`, t from 0 at the oldest sample shown."""
         k = min(self._n, self._t.size)
+        if k:
+            k = int(np.count_nonzero(self._t[-k:] >= self._t[-1] - self.window_s))
         t = self._t[-k:] - (self._t[-k] if k else 0.0)
         return (t, *(row[-k:] for row in self._a))
 
 
 def legend_html() -> str:
-    """What the gauges' bars and marks mean, shown on the page under them."""
+    """What the gauges' bars and marks mean, as eq (4)-(8) define them (module docstring)."""
     return asset("gauge_legend.html").strip()
+
+
+@dataclass(frozen=True)
+class Trial:
+    """One trial the page saw end: its number since the page started, and its outcome.
+
+    Attributes:
+        number: 1 for the first trial the view saw end.
+        success: the utensil rests in the bin.
+        reason: the task's outcome reason ("in_bin", "timeout", ...).
+        time_s: from the trial's start (a task reset) to its outcome [s].
+        mode: the arbitration mode at the outcome.
+    """
+
+    number: int
+    success: bool
+    reason: str
+    time_s: float
+    mode: str
+
+
+class TrialTally:
+    """The trials that ended since the view started, read from the tick records.
+
+    A trial ends when a record first carries an outcome; the next one can end only after the
+    task was reset (the outcome cleared, or the tick count restarted). Records the view
+    skipped do not matter: an outcome stays on the records until the reset.
+    """
+
+    def __init__(self) -> None:
+        self.trials: list[Trial] = []
+        self._armed = True
+        self._k = -1
+
+    def observe(self, record: TickRecord) -> Trial | None:
+        """Count the record's outcome if it ends a trial; the trial, or None."""
+        if record.outcome is None or record.k < self._k:
+            self._armed = True
+        self._k = int(record.k)
+        o = record.outcome
+        if o is None or not self._armed:
+            return None
+        self._armed = False
+        n = len(self.trials) + 1
+        trial = Trial(n, bool(o.success), o.reason, float(o.time_s), record.mode.value)
+        self.trials.append(trial)
+        return trial
+
+    @property
+    def successes(self) -> int:
+        return sum(t.success for t in self.trials)
+
+
+def _trial_html(t: Trial) -> str:
+    word = "success" if t.success else "failure"
+    said = word if t.success else f"{word} ({html.escape(t.reason)})"
+    return (
+        f'<span class="dst-trial" data-number="{t.number}" data-outcome="{word}" '
+        f'data-reason="{html.escape(t.reason)}" data-time-s="{t.time_s:.1f}" '
+        f'data-mode="{html.escape(t.mode)}" style="color:{GREEN if t.success else RED}">'
+        f"#{t.number} {said} {t.time_s:.1f} s {html.escape(t.mode)}</span>"
+    )
+
+
+def tally_html(tally: TrialTally, shown: int = 4) -> str:
+    """The tally line: trials, successes, failures, mean success time, and the last `shown`
+    trials with their outcome and time (newest first)."""
+    n, ok = len(tally.trials), tally.successes
+    times = [t.time_s for t in tally.trials if t.success]
+    mean = f" &middot; mean success time {sum(times) / len(times):.1f} s" if times else ""
+    head = (
+        f"<b>Trials since start</b> {n}: {ok} success{'es' if ok != 1 else ''}, "
+        f"{n - ok} failure{'s' if n - ok != 1 else ''}{mean}"
+        if n
+        else "<b>Trials since start</b> none ended yet"
+    )
+    rows = "".join(_trial_html(t) for t in reversed(tally.trials[-shown:]))
+    return (
+        f'<div class="dst-tally" data-trials="{n}" data-successes="{ok}" '
+        f'data-failures="{n - ok}">{head}<div>{rows}</div></div>'
+    )
+
+
+#: A camera axis, signed, in the words of an operator facing a camera that looks at them
+#: (mirror) or one that looks where they look: (axis, sign) -> (mirror, not mirror).
+_HAND_WORDS: dict[tuple[int, int], tuple[str, str]] = {
+    (0, 1): ("to your left", "to your right"),
+    (0, -1): ("to your right", "to your left"),
+    (1, 1): ("down", "down"),
+    (1, -1): ("up", "up"),
+    (2, 1): ("back, away from the camera", "forward, away from the camera"),
+    (2, -1): ("forward, towards the camera", "back, towards the camera"),
+}
+_ROBOT_AXES = (("x", "forward"), ("y", "left"), ("z", "up"))
+
+
+def mapping_rows(config: MappingConfig) -> tuple[tuple[str, str], ...]:
+    """What each hand motion does to the robot: (hand, robot) rows, read from the mapping's
+    camera-to-base rotation, scale and finger table (`tracking/mapping.py`)."""
+    R = config.R_base_cam
+    rows: list[tuple[str, str]] = []
+    for i, (axis, word) in enumerate(_ROBOT_AXES):
+        j = int(np.argmax(np.abs(R[i])))
+        hand = _HAND_WORDS[(j, 1 if R[i, j] > 0 else -1)][0 if config.mirror else 1]
+        rows.append((f"hand {hand}", f"robot +{axis} ({word}), x{config.scale[i]:g}"))
+    for rot, (axis, word) in zip(("roll", "pitch", "yaw"), _ROBOT_AXES, strict=True):
+        rows.append((f"turn the hand about the {word} axis", f"robot {rot} (about {axis})"))
+    for robot, human in ROBOT_FINGERS.items():
+        src = " + ".join(human) + (" (mean)" if len(human) > 1 else "")
+        rows.append((f"open / close {src}", f"robot {robot}"))
+    return tuple(rows)
+
+
+def mapping_html(config: MappingConfig | None) -> str:
+    """The mapping help: a two-column table of `mapping_rows` (or a line saying the source
+    is not a hand in front of a camera)."""
+    if config is None:
+        return '<div class="dst-note dst-mapping">this source has no hand-to-robot mapping</div>'
+    side = "facing you (a mirror)" if config.mirror else "behind you, looking where you look"
+    rows = "".join(
+        f"<tr><td>{html.escape(h)}</td><td>&rarr; {html.escape(r)}</td></tr>"
+        for h, r in mapping_rows(config)
+    )
+    return (
+        f'<div class="dst-mapping"><b>Hand &rarr; robot</b> (camera {side}; motion relative '
+        "to where the hand was at Calibrate)"
+        f"<table>{rows}</table></div>"
+    )
 
 
 def plot_series(dims: Sequence[str]) -> tuple[dict[str, Any], ...]:

@@ -16,6 +16,13 @@ Rates (configurable, `ViewerConfig`):
 
 Several tabs see the same session: every element is added to the server (shared) scene and
 GUI, so all clients get the same state, and a new tab is brought up to date by viser.
+
+Layout (fits a 1366 x 768 window without scrolling to reach a control): the controls and the
+live parameters in a panel docked on the left (a "Hand -> robot" tab beside them says what
+each hand motion does); on the right the status line (with the source), the tally of trials,
+the gauges and their legend, the alpha plot and the camera. A parameter is checked at the
+widget before it is posted: outside its slider's range, or refused by `ArbitrationConfig`'s
+own validation, it is not sent, and the panel says why and which value the loop keeps.
 """
 
 from __future__ import annotations
@@ -41,19 +48,26 @@ from dsteleop.app.loop.broadcast import Broadcaster, Subscription
 from dsteleop.app.loop.controls import Controls
 from dsteleop.app.session.schema import TickRecord
 from dsteleop.app.viewer.panel import (
+    DEMO_NOTE,
     PLOT_AXES,
+    PLOT_CAPTION,
+    PLOT_LEGEND,
     AlphaHistory,
+    TrialTally,
     camera_image,
     gauges_html,
     legend_html,
+    mapping_html,
     plot_series,
     status_html,
     style_html,
+    tally_html,
 )
 from dsteleop.app.viewer.scene import SceneView
 from dsteleop.arbitration import ArbitrationConfig, ArbitrationStep, HandState, registered
-from dsteleop.errors import ConfigError, InputError
+from dsteleop.errors import ConfigError, DsteleopError, InputError
 from dsteleop.robot.scene import SceneGeometry
+from dsteleop.tracking.mapping import MappingConfig
 
 log = logging.getLogger(__name__)
 
@@ -78,21 +92,11 @@ class Slider:
     initial: float
     integer: bool = False
 
-    def refusal(self, value: float) -> str:
-        """Why the page refuses `value` for this parameter ("" when it takes it): outside
-        [low, high], not a number, or not whole for an integer parameter."""
-        what = f"{self.name} {value:g} refused"
-        if not math.isfinite(value) or not self.low <= value <= self.high:
-            return f"{what}: must be in {self.low:g}-{self.high:g}; the loop keeps its value"
-        if self.integer and value != round(value):
-            return f"{what}: must be a whole number; the loop keeps its value"
-        return ""
-
 
 # The main hyper-parameters (docs/METHOD.md §6; ArbitrationConfig's defaults).
 DEFAULT_SLIDERS: tuple[Slider, ...] = (
     Slider("kappa", "kappa (von Mises)", 0.5, 20.0, 0.5, 4.0),
-    Slider("p", "p (beta prime)", 1.0, 20.0, 0.5, 4.0),
+    Slider("p", "p (beta prime)", 1.5, 20.0, 0.5, 4.0),  # > 1: eq (7) needs a mode
     Slider("q", "q (beta prime)", 1.5, 20.0, 0.5, 6.0),
     Slider("b", "b (willingness scale)", 0.1, 3.0, 0.05, 1.0),
     Slider("window", "window [ticks]", 1, 30, 1, 5, integer=True),
@@ -107,6 +111,27 @@ def sliders_for(arbitration: ArbitrationConfig, goal_noise_m: float) -> tuple[Sl
         dataclasses.replace(s, initial=min(max(float(now.get(s.name, s.initial)), s.low), s.high))
         for s in DEFAULT_SLIDERS
     )
+
+
+def refusal(slider: Slider, value: float, arbitration: ArbitrationConfig) -> str | None:
+    """Why the GUI refuses this value of this slider, or None when the loop may take it.
+
+    A value outside the slider's range, or one that `ArbitrationConfig` itself refuses (its
+    validation, not a copy of it), is refused; non-arbitration sliders (`goal_noise_m`) are
+    checked against their range only.
+    """
+    v = float(value)
+    if not math.isfinite(v) or not (slider.low <= v <= slider.high):
+        return f"{slider.name} must be in [{slider.low:g}, {slider.high:g}], got {v:g}"
+    if slider.integer and v != round(v):
+        return f"{slider.name} must be a whole number, got {v:g}"
+    if slider.name not in ArbitrationConfig.field_names():
+        return None
+    try:
+        arbitration.replace(**{slider.name: round(v) if slider.integer else v})
+    except DsteleopError as exc:
+        return str(exc)
+    return None
 
 
 @dataclass(frozen=True)
@@ -197,6 +222,11 @@ class Viewer:
         config: listen address and update rates.
         utensils: utensil names offered in the GUI.
         sliders: hyper-parameter sliders (initial values should match the loop's config).
+        arbitration: the loop's arbitration config: parameter changes are checked against
+            it before they are posted (`refusal`).
+        source: what drives the hand, for the status line (`panel.source_label`).
+        mapping: the hand's workspace mapping, for the "Hand -> robot" help (None: none).
+        info: fixed facts shown in the status line (name -> text), e.g. impairments.
 
     Raises:
         InputError: when the port is in use or the host cannot be listened on.
@@ -210,6 +240,10 @@ class Viewer:
         config: ViewerConfig | None = None,
         utensils: Sequence[str] = DEFAULT_UTENSILS,
         sliders: Sequence[Slider] = DEFAULT_SLIDERS,
+        arbitration: ArbitrationConfig | None = None,
+        source: str = "",
+        mapping: MappingConfig | None = None,
+        info: Mapping[str, str] | None = None,
     ) -> None:
         import viser  # heavy: imported only when a view is built
 
@@ -240,6 +274,13 @@ class Viewer:
         self._t_plot = -math.inf
         self._recent: tuple[float | None, float | None] = (None, None)
         self._rate_marks: deque[tuple[int, float, float]] = deque(maxlen=64)
+        self.source = source
+        self.info = dict(info or {})
+        self.tally = TrialTally()
+        self._arbitration = arbitration or ArbitrationConfig()
+        self._accepted: dict[str, float] = {}
+        self.refused: dict[str, str] = {}  # slider name -> why its last value was refused
+        self._mapping = mapping
         self._build(utensils, sliders)
 
     # ------------------------------------------------------------------ public
@@ -300,95 +341,128 @@ class Viewer:
     def _build(self, utensils: Sequence[str], sliders: Sequence[Slider]) -> None:
         gui = self.server.gui
         gui.configure_theme(control_width="large", dark_mode=False, show_logo=False)
-        self.server.initial_camera.position = (-0.55, -0.95, 0.85)
+        self.server.initial_camera.position = (-0.75, -1.25, 1.0)
         self.server.initial_camera.look_at = (0.55, 0.0, 0.1)
         self.scene = SceneView(self.server.scene, self._geometry, self.config.trail_points)
 
         gui.add_html(style_html())
         self._status = gui.add_html(
-            '<div class="dst-status" data-status="waiting">waiting for the loop&hellip;</div>'
+            f'<div class="dst-status" data-source="{html.escape(self.source)}" '
+            'data-status="waiting">waiting for the loop&hellip;</div>'
         )
+        self._tally = gui.add_html(tally_html(self.tally))
         self._gauges = gui.add_html('<div class="dst-gauges" data-tick="-1"></div>')
         gui.add_html(legend_html())
         self._plot_folder = gui.add_folder("Authority over time (alpha)")
+        with self._plot_folder:
+            gui.add_html(f'<div class="dst-note">{html.escape(PLOT_CAPTION)}</div>')
         self._camera_folder = gui.add_folder("Camera")
         with self._camera_folder:
+            demo = self.source == "demo"
+            note = f"demo: {DEMO_NOTE}; the grey canvas shows its simulated hand" if demo else ""
+            self._camera_caption = gui.add_html(f'<div class="dst-note">{note}</div>')
             self._camera_note = gui.add_html('<div class="dst-note">no camera image</div>')
-        with gui.add_folder("Controls"):
-            names = mode_names()
-            mode = gui.add_dropdown("Mode", names, initial_value=names[0])
-            self._mode: Any = mode
 
-            @mode.on_update
-            def _(event: Any) -> None:
-                if event.client is not None:  # a person chose it (not our own sync)
-                    self._controls.set_mode(str(mode.value))
+        side = gui.add_panel()
+        with side.add_tab("Controls"):
+            self._add_controls(utensils, sliders)
+        with side.add_tab("Hand → robot"):
+            gui.add_html(mapping_html(self._mapping))
+        side.dock_left()
+        side.set_width(320)
+        self._side = side
+        main = gui.main_panel
+        main.dock_right()  # the scene between the two panels, none of it under them
+        main.set_width(415)
 
-            buttons = gui.add_button_group("Hand / task", ("Calibrate", "Reset task"))
+    def _add_controls(self, utensils: Sequence[str], sliders: Sequence[Slider]) -> None:
+        gui = self.server.gui
+        names = mode_names()
+        mode = gui.add_dropdown("Mode", names, initial_value=names[0])
+        self._mode: Any = mode
 
-            @buttons.on_click
-            def _(event: Any) -> None:
-                if event.target.value == "Calibrate":
-                    self._controls.calibrate()
-                else:
-                    self._controls.reset(str(utensil.value))
+        @mode.on_update
+        def _(event: Any) -> None:
+            if event.client is not None:  # a person chose it (not our own sync)
+                self._controls.set_mode(str(mode.value))
 
-            names = tuple(utensils) or DEFAULT_UTENSILS
-            utensil = gui.add_dropdown("Utensil", names, initial_value=names[0])
+        buttons = gui.add_button_group("Hand / task", ("Calibrate", "Reset task"))
 
-            @utensil.on_update
-            def _(event: Any) -> None:
-                if event.client is not None:
-                    self._controls.choose_utensil(str(utensil.value))
+        @buttons.on_click
+        def _(event: Any) -> None:
+            if event.target.value == "Calibrate":
+                self._controls.calibrate()
+            else:
+                self._controls.reset(str(utensil.value))
 
-            record = gui.add_button_group("Recording", ("Start", "Stop"))
+        names = tuple(utensils) or DEFAULT_UTENSILS
+        utensil = gui.add_dropdown("Utensil", names, initial_value=names[0])
 
-            @record.on_click
-            def _(event: Any) -> None:
-                self._controls.set_recording(event.target.value == "Start")
+        @utensil.on_update
+        def _(event: Any) -> None:
+            if event.client is not None:
+                self._controls.choose_utensil(str(utensil.value))
 
-        with gui.add_folder("Parameters (live, recorded)", expand_by_default=False):
-            # Says why a value typed into a slider's box was refused (hidden otherwise).
-            self._param_note = gui.add_html('<div class="dst-note" data-refused=""></div>')
-            self._param_note.visible = False
+        record = gui.add_button_group("Recording", ("Start", "Stop"))
+
+        @record.on_click
+        def _(event: Any) -> None:
+            self._controls.set_recording(event.target.value == "Start")
+
+        with gui.add_folder("Parameters (live, recorded)", expand_by_default=True):
             for s in sliders:
                 self._add_slider(s)
+            self._refused_note = gui.add_html('<div class="dst-refused" data-refused=""></div>')
 
     def _add_slider(self, s: Slider) -> None:
         handle = self.server.gui.add_slider(
-            s.label, min=s.low, max=s.high, step=s.step, initial_value=s.initial
+            s.label,
+            min=s.low,
+            max=s.high,
+            step=s.step,
+            initial_value=s.initial,
+            hint=f"{s.name}: {s.low:g} to {s.high:g}",
         )
-        accepted = [float(s.initial)]  # what the loop was last given
+        self._accepted[s.name] = s.initial
 
         @handle.on_update
         def _(event: Any) -> None:
-            if event.client is None:
-                return  # our own change (a refused value put back)
-            v = float(handle.value)
-            reason = s.refusal(v)
-            if reason:
-                # Refused at the widget: the loop, and so the recording, never sees it.
-                self._param_note.content = (
-                    f'<div class="dst-note" data-refused="{html.escape(s.name)}" '
-                    f'style="color:#c0392b">{html.escape(reason)}</div>'
-                )
-                self._param_note.visible = True
-                cast(Any, handle).value = accepted[0]  # back to what the loop has
-                with contextlib.suppress(Exception):  # a tab that left meanwhile
-                    event.client.add_notification(
-                        "Parameter refused", reason, auto_close_seconds=8.0, color="red"
-                    )
-                return
-            accepted[0] = v
-            self._param_note.visible = False
-            self._controls.set_params(**{s.name: round(v) if s.integer else v})
+            if event.client is not None:
+                self.offer_param(s, handle.value)
+
+    def offer_param(self, slider: Slider, value: float) -> bool:
+        """A value a person set on a slider: posted to the loop if valid (True), else refused
+        with the reason shown under the sliders (the loop keeps its value)."""
+        why = refusal(slider, value, self._arbitration)
+        if why is None:
+            v = round(value) if slider.integer else float(value)
+            if slider.name in ArbitrationConfig.field_names():
+                self._arbitration = self._arbitration.replace(**{slider.name: v})
+            self._accepted[slider.name] = float(v)
+            self.refused.pop(slider.name, None)
+            self._controls.set_params(**{slider.name: v})
+        else:
+            self.refused[slider.name] = why
+        self._show_refusals()
+        return why is None
+
+    def _show_refusals(self) -> None:
+        lines = "".join(
+            f"<div>{html.escape(name)} not applied: {html.escape(why)} "
+            f"(the loop keeps {self._accepted[name]:g})</div>"
+            for name, why in self.refused.items()
+        )
+        names = html.escape(",".join(self.refused))
+        self._refused_note.content = (
+            f'<div class="dst-refused" data-refused="{names}">{lines}</div>'
+        )
 
     def _ensure_plot(self, dims: tuple[str, ...]) -> None:
         if dims == self._dims:
             return
         self._dims = dims
         n = max(2, round(self.config.plot_window_s * self.config.panel_hz))
-        self._history = AlphaHistory(dims, n)
+        self._history = AlphaHistory(dims, n, self.config.plot_window_s)
         if self._plot is not None:
             self._plot.remove()
         with self._plot_folder:
@@ -397,7 +471,7 @@ class Viewer:
                 series=plot_series(dims),  # type: ignore[arg-type]
                 scales=cast(Any, {"x": {"time": False, "auto": True}, "y": {"range": [0, 1]}}),
                 axes=cast(Any, PLOT_AXES),
-                legend={"show": True},
+                legend=cast(Any, PLOT_LEGEND),
                 height=180,
             )
 
@@ -476,7 +550,11 @@ class Viewer:
         timing = self._recent
         with self.server.atomic():
             self.scene.trail.draw()
-            self._status.content = status_html(snap, self.viewer_counters(), *timing)
+            self._status.content = status_html(
+                snap, self.viewer_counters(), *timing, source=self.source, info=self.info
+            )
+            if self.tally.observe(snap) is not None:
+                self._tally.content = tally_html(self.tally)
             self._gauges.content = gauges_html(snap, self._last_step)
             now = time.monotonic()
             if self._plot is not None and now - self._t_plot >= 1.0 / self.config.plot_hz:
