@@ -173,8 +173,6 @@ class SimConfig:
         max_paths: trajectories whose paths are kept for the distribution figure.
         arbitration: arbitration hyper-parameters.
         strategy: operator strategy; None gives planar_strategy(arbitration).
-        world: the operator's impairments (`app.operator.world`), swept by `dsteleop sim
-            --sweep`.
     """
 
     trajectories: int = 1000
@@ -203,7 +201,6 @@ class SimConfig:
     max_paths: int = 200
     arbitration: ArbitrationConfig = field(default_factory=ArbitrationConfig)
     strategy: OperatorStrategy | None = None
-    world: Impairments = field(default_factory=Impairments)
 
     def __post_init__(self) -> None:
         if isinstance(self.trajectories, bool) or not isinstance(self.trajectories, int):
@@ -289,8 +286,6 @@ class SimConfig:
                 v = _jsonable(dataclasses.asdict(self.operator_strategy))
             elif f.name == "profile":
                 v = _jsonable(dataclasses.asdict(self.operator_profile))
-            elif f.name == "world":
-                v = v.to_dict()
             elif isinstance(v, tuple):
                 v = list(v)
             out[f.name] = v
