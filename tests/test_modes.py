@@ -130,12 +130,14 @@ def test_a_mixed_batch_with_a_new_mode_equals_each_mode_alone(share: Mode) -> No
 
 
 def test_the_study_and_tune_run_a_new_mode(share: Mode) -> None:
-    chunk = run_chunk(SimConfig(trajectories=3, modes=(Mode.S, share), max_paths=0), [0, 1, 2])
+    cfg = SimConfig(trajectories=3, modes=(Mode.S, share), max_paths=0)
+    chunk = run_chunk(cfg, [0, 1, 2])
     res = chunk.modes["share"]
-    assert res.success.shape == (3,) and np.all(res.time_s > 0)
+    assert res.success.shape == (3 * cfg.attempts,) and np.all(res.time_s > 0)
     m = study_task(StudyBatch(2, 0, "share"), ArbitrationConfig().to_dict())
-    assert m["study.share.n"] == 2 and 0.0 <= m["study.share.agreement"] <= 1.0
-    assert m["study.S.n"] == 2
+    runs = 2 * cfg.attempts  # each simulated person makes `attempts` runs
+    assert m["study.share.n"] == runs and 0.0 <= m["study.share.agreement"] <= 1.0
+    assert m["study.S.n"] == runs
 
 
 def test_scalar_at_cap_one_scale_one_is_s_to_the_last_bit() -> None:

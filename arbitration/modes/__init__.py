@@ -78,7 +78,9 @@ class Mode(str, metaclass=_Registered):
         return f"Mode.{self.spec.attribute}" if self.value in _SPECS else f"Mode({self.value!r})"
 
     def __reduce__(self) -> tuple[Any, tuple[str]]:
-        return (Mode.parse, (self.value,))
+        # A module-level function, which every pickler (Ray's cloudpickle too) refers to by
+        # name; a bound classmethod would be pickled by value, without this registry.
+        return (_by_name, (self.value,))
 
     @classmethod
     def parse(cls, text: str) -> Mode:
@@ -89,6 +91,11 @@ class Mode(str, metaclass=_Registered):
                 return _MODES[name]
         names = ", ".join(_SPECS)
         raise ConfigError(f"unknown mode {text!r} (choose from {names})")
+
+
+def _by_name(name: str) -> Mode:
+    """The registered mode `name` (how a pickled Mode is restored)."""
+    return Mode.parse(name)
 
 
 def register(spec: ModeSpec) -> Mode:
