@@ -308,13 +308,15 @@ class Arbiter:
         )  # fmt: skip
         own = dict(state.own)
         for mode, idx in groups:
-            spec = mode.spec
-            st = own.get(mode.value)
-            if st is None and spec.initial_state is not None:
+            spec, name = mode.spec, mode.value
+            params = None if spec.params is None else cfg.params_of(name)
+            if spec.initial_state is None:
+                spec.alpha(params, q, idx, None)
+                continue
+            st = own.get(name)
+            if st is None:
                 st = spec.initial_state(cfg, D, M)
-            new = spec.alpha(cfg.params_of(mode.value), q, idx, st)
-            if spec.initial_state is not None:
-                own[mode.value] = new
+            own[name] = spec.alpha(params, q, idx, st)
         if len(own) != len(state.own) or any(own[n] is not st for n, st in state.own):
             state = FilterState(state.batch, D, tuple(own.items()))
         (Cp, CR, _), (Rp, RR, Rg) = s[_CURRENT], s[_REF]

@@ -38,6 +38,9 @@ def test_quick_bench_prints_every_arbitration_figure() -> None:
         "6_dims_tick_like",
     }
     assert out["ds_batched_steps_per_s"] == cases["11_dims_random"]["steps_per_s"]
+    mixed = out["modes_batched"]  # every registered mode in one batch
+    assert {"S", "DS", "manual", "autonomous", "scalar"} <= set(mixed["modes"])
+    assert mixed["steps_per_s"] > 0 and mixed["call_ms_median"] > 0
     for case in cases.values():
         assert case["steps_per_s"] > 0 and math.isfinite(case["call_ms_median"])
         # steps/s and the median call time are the same figure

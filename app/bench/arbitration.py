@@ -5,6 +5,9 @@
     ds_batched_steps_per_s  1000 trajectories per call, 6 + 5 dims, random states
     ds_batched_call_ms      the same calls: median and p95 [ms]
     ds_batched_by_case      the batched step per dims (11, 6) and states (random, tick_like)
+    modes_batched           1000 rows of 6 + 5 dims, random states, mixing every registered
+                            mode row by row (as the simulation study steps its modes):
+                            steps_per_s and call_ms_median
 
 The headline figures use independent random states (the worst case: random rotations put some
 pairs near pi, and erfc is slowest for the large arguments unrelated states give). The batched
@@ -21,7 +24,14 @@ from typing import Any
 import numpy as np
 
 from dsteleop.app.bench import percentiles_us
-from dsteleop.arbitration import ArbitrationInput, HandState, make_arbiter, so3_exp
+from dsteleop.arbitration import (
+    ArbitrationInput,
+    HandState,
+    RowModes,
+    make_arbiter,
+    registered,
+    so3_exp,
+)
 from dsteleop.arbitration.arbiters import Arbiter
 
 
@@ -76,6 +86,9 @@ def run(quick: bool = False) -> dict[str, Any]:
                 "call_ms_p95": round(float(np.percentile(bsamples, 95)) * 1e3, 3),
             }
     head = cases["11_dims_random"]
+    modes = registered()
+    mixed = RowModes.of([modes[k % len(modes)] for k in range(batch)])
+    msamples = _batched_samples(arbiter, _inputs(rng, (batch,), 5), batch, calls, mixed)
     return {
         "ds_step_us": percentiles_us(samples),
         "ds_batched_steps_per_s": head["steps_per_s"],
@@ -86,18 +99,28 @@ def run(quick: bool = False) -> dict[str, Any]:
             "p95": head["call_ms_p95"],
         },
         "ds_batched_by_case": cases,
+        "modes_batched": {
+            "modes": [m.value for m in modes],
+            "steps_per_s": round(batch / float(np.median(msamples))),
+            "call_ms_median": round(float(np.median(msamples)) * 1e3, 3),
+        },
     }
 
 
 def _batched_samples(
-    arbiter: Arbiter, inp: ArbitrationInput, batch: int, calls: int
+    arbiter: Arbiter,
+    inp: ArbitrationInput,
+    batch: int,
+    calls: int,
+    rows: RowModes | None = None,
 ) -> list[float]:
-    """Seconds per call of the batched DS step, the filter state carried from call to call."""
+    """Seconds per call of the batched step (DS, or the modes `rows`), the filter state
+    carried from call to call."""
     state = arbiter.initial_state(6 + inp.X_current.n_fingers, (batch,))
     samples = []
     for _ in range(calls):
         t0 = time.perf_counter()
-        state, _ = arbiter.step(state, inp)
+        state, _ = arbiter.step(state, inp, rows)
         samples.append(time.perf_counter() - t0)
     return samples
 

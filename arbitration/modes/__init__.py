@@ -70,7 +70,7 @@ class Mode(str, metaclass=_Registered):
     def spec(self) -> ModeSpec:
         """Its plug-in."""
         try:
-            return _SPECS[self.value]
+            return _SPECS[self]  # a Mode hashes and compares as its name
         except KeyError:
             raise ConfigError(f"mode {self.value!r} is no longer registered") from None
 
