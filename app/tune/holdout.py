@@ -97,7 +97,7 @@ def compare(
     results: Mapping[str, StudyResult], base: str = "base", tuned: str = "best"
 ) -> dict[str, Any]:
     """The report of the module docstring from `study_holdout`'s results."""
-    out: dict[str, Any] = {"trajectories": int(results[base].lengths.size)}
+    out: dict[str, Any] = {"trajectories": int(results[base].config.trajectories)}
     for name, res in results.items():
         out[name] = {mode: headline(r) for mode, r in res.modes.items()}
     a, b = results[tuned].modes["DS"], results[base].modes["DS"]
