@@ -174,7 +174,10 @@ def test_a_live_run_logs_every_tick_without_dropping(tmp_path: Path) -> None:
         _, v = scalars(rec, layout.series(layout.LIVE_ROOT, q, "yaw"))
         assert len(v) == summary["ticks"]
     _, status = column(rec, layout.status(layout.LIVE_ROOT), "Text")
-    assert status[0] == ["tracking"]
+    # The demo's link delay (docs/operator.md: 0.2 s each way) holds the first hand samples
+    # back, so the first ticks may have no input yet; then the hand is tracked.
+    assert status[0] in (["tracking"], ["lost: no input yet"])
+    assert ["tracking"] in status
     cols = {str(c) for c in rec.schema().component_columns()}
     assert any("/live/scene/robot/palm:" in c for c in cols)
 

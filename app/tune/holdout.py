@@ -108,7 +108,7 @@ def compare(
 ) -> dict[str, Any]:
     """The report of the module docstring from `study_holdout`'s results (`mode`: the tuned
     mode)."""
-    out: dict[str, Any] = {"trajectories": int(results[base].lengths.size)}
+    out: dict[str, Any] = {"trajectories": int(results[base].config.trajectories)}
     for name, res in results.items():
         out[name] = {m: headline(r) for m, r in res.modes.items()}
     a, b = results[tuned].modes[mode], results[base].modes[mode]
