@@ -409,3 +409,29 @@ def test_the_loop_lists_every_recording_it_made(tmp_path: Path) -> None:
     assert loop.recording is None
     assert len(loop.recordings) == 1 and loop.recordings[0].parent == tmp_path
     loop.close()
+
+
+def test_an_explicit_input_delay_of_zero_switches_off_the_demo_worlds_delay() -> None:
+    """The demo takes its world's link delay unless the user chose one: `--input-delay 0` is
+    a choice (before, 0 meant "the world's value", so the delay could not be switched off)."""
+    import argparse
+
+    from dsteleop.app.cli.compose import build
+    from dsteleop.app.cli.options import add_loop_options, loop_options
+    from dsteleop.app.operator.world import Impairments
+
+    parser = argparse.ArgumentParser()
+    add_loop_options(parser, "demo", "the session folder")
+    delays = {}
+    for extra in ([], ["--input-delay", "0"], ["--input-delay", "0.05"]):
+        options = loop_options(parser.parse_args(["--source", "demo", *extra]))
+        built = build(options, realtime=False)
+        try:
+            delays[" ".join(extra)] = built.loop.config.input_delay_s
+        finally:
+            built.close()
+    assert delays == {
+        "": Impairments().delay_s,
+        "--input-delay 0": 0.0,
+        "--input-delay 0.05": 0.05,
+    }

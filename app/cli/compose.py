@@ -114,7 +114,7 @@ def build(
         world = demo_config.world
         if goal_noise_m is None:
             goal_noise_m = world.goal_sigma_m
-        if options.loop.input_delay_s == 0.0:
+        if not options.input_delay_given and options.loop.input_delay_s == 0.0:
             options = dataclasses.replace(
                 options, loop=dataclasses.replace(options.loop, input_delay_s=world.delay_s)
             )

@@ -289,6 +289,8 @@ class LoopOptions:
         rerun: where a Rerun recording of the run goes, or None (docs/recordings.md).
         history: the operator history file (`--history`), or None: an empty history, kept
             nowhere.
+        input_delay_given: the input delay was chosen (`--input-delay`, or a `--config`
+            file's loop section), 0 included; otherwise the demo takes its world's delay.
     """
 
     source: SourceSpec
@@ -304,6 +306,7 @@ class LoopOptions:
     time_limit_s: float | None = None
     rerun: RerunTarget | None = None
     history: Path | None = None
+    input_delay_given: bool = False
 
     @classmethod
     def of(cls, source: str = "demo", loop: LoopConfig | None = None, **kw: Any) -> LoopOptions:
@@ -362,6 +365,7 @@ def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOp
             else RerunTarget(args.rerun, args.rerun_connect)
         ),
         history=history,
+        input_delay_given=args.input_delay is not None or "input_delay_s" in loop_file,
     )
 
 
