@@ -1,4 +1,5 @@
-"""The arm + hand under position control: pose and openness in, achieved state out.
+"""The arm + hand of a robot description under position control: pose and openness in,
+achieved state out.
 
 One control tick (`Robot.set_target` then `Robot.step`, `control_dt_s`: 1/30 s by default,
 1/rate for a loop at another rate, `RobotConfig.for_period`):
@@ -8,6 +9,7 @@ One control tick (`Robot.set_target` then `Robot.step`, `control_dt_s`: 1/30 s b
                           squares, joint limits, null-space pull to the rest posture,
                           warm-started from the last solution)  ->  position motors
                           finger joints: q = q_closed + g * (q_open - q_closed), per finger
+                          (each joint's open and closed position from the description)
     step():               `substeps` physics steps of control_dt_s / substeps, then contacts
     state():              palm pose by forward kinematics of the simulated joints
 
@@ -26,19 +28,21 @@ Grasping is contact and friction. Three rules keep it stable in a rigid-body sim
                     grip force after closing was a median 4-6 N (down to 0.1 N) of the
                     motors' tens of newtons. A compliant contact is well posed for the
                     solver: median 13-15 N, at the same cost per tick.
-    contact stall   a finger that touches a graspable body while closing stops there: its
-                    joint angles are latched and its target then closes at most
-                    `squeeze_rad` past them. The motor squeezes with its full effort, but
-                    the pad cannot be driven deep into the object (which makes objects wedge
-                    and pop out). It latches only once the object is clamped (the thumb and
-                    an opposing finger both touch it) and the command closes past the joints
-                    by more than `stall_lead_rad`: a finger that merely brushes the grip on
-                    the way (e.g. a proximal phalanx grazing the grip's top edge, or an open
-                    finger pushed by the grip while the hand approaches) pushes the object
-                    along and goes on closing. (Latching at such a first touch, the finger
-                    stopped short of the grip and the grasp held with next to no force.)
-                    The latch frees when the command opens past it.
-    thumb effort    the thumb is as strong as the three fingers it opposes together.
+    contact stall   a finger that touches a graspable body while closing stops there: its joint
+                    angles are latched and its target then closes at most `squeeze_share` of its
+                    travel past them. The motor squeezes with its full effort, but the pad cannot be
+                    driven deep into the object (which makes objects wedge and pop out). It latches
+                    only once the object is clamped (the thumb and an opposing finger both touch it)
+                    and the command closes past the joints by more than `stall_lead_share` of the
+                    travel: a finger that merely brushes the grip on the way (e.g. a proximal
+                    phalanx grazing the grip's top edge, or an open finger pushed by the grip while
+                    the hand approaches) pushes the object along and goes on closing. (Latching at
+                    such a first touch, the finger stopped short of the grip and the grasp held with
+                    next to no force.) The latch frees when the command opens past it.
+    thumb effort    the thumb is as strong as the three fingers it opposes together (each
+                    finger's effort is in the description).
+"The thumb and an opposing finger" is, for any description, its `opposing` contact group
+and another (the Panda: the left jaw and the right jaw).
 `scripts/grasp_grid.py` measures it: it closes the hand at palm poses off the true grasp pose
 and carries the utensil to the bin at the loop's limits. With rigid pads and a stall at the
 first touch, 34/37 of the spoon's single-axis offsets (0.5-2 cm, 0.05-0.1 rad) and 35/40 of
@@ -59,7 +63,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any
 
@@ -69,9 +73,9 @@ from numpy.typing import NDArray
 from dsteleop.arbitration.se3 import HandState
 from dsteleop.errors import ConfigError, InputError
 from dsteleop.robot.bullet import pb
-from dsteleop.robot.hand_urdf import FINGER_NAMES, JOINT_OPEN_CLOSED_RAD, PALM_LINK
+from dsteleop.robot.description import RobotDescription
 from dsteleop.robot.kinematics import ArmChain
-from dsteleop.robot.model import ARM_JOINTS, JointInfo, LoadedRobot
+from dsteleop.robot.model import LoadedRobot
 from dsteleop.robot.world import FINGER_FRICTION, R_from_quat_xyzw
 
 Array = NDArray[np.float64]
@@ -93,10 +97,15 @@ class Workspace:
         reach_m: radius of the reach sphere for the palm origin.
     """
 
-    lower_m: tuple[float, float, float] = (0.25, -0.65, 0.02)
-    upper_m: tuple[float, float, float] = (0.95, 0.65, 0.80)
-    shoulder_m: tuple[float, float, float] = (0.0, 0.0, 0.36)
-    reach_m: float = 0.88
+    lower_m: tuple[float, float, float]
+    upper_m: tuple[float, float, float]
+    shoulder_m: tuple[float, float, float]
+    reach_m: float
+
+    @classmethod
+    def of(cls, desc: RobotDescription) -> Workspace:
+        """The workspace a robot description gives."""
+        return cls(desc.workspace_min_m, desc.workspace_max_m, desc.shoulder_m, desc.reach_m)
 
     def clamp(self, p_m: Array) -> tuple[Array, bool]:
         """`p_m` moved into the box, then into the sphere; and whether it moved."""
@@ -127,25 +136,21 @@ class RobotConfig:
         unreachable_tol_rad: orientation error of the IK solution above which the target is
             reported unreachable [rad].
         arm_force_nm: motor effort limit of every arm joint [N m].
-        arm_position_gain: PyBullet position gain of the arm motors.
-        finger_force_nm: motor effort limit of each joint of index, middle, ring [N m].
-        thumb_force_nm: motor effort limit of each thumb joint [N m]; the thumb opposes three
-            fingers, so it is as strong as the three together and the grip stays centred.
         finger_position_gain: PyBullet position gain of the finger motors.
         grasp_helper: enable the grasp helper constraint (module docstring; off: friction).
         helper_openness: a finger counts as closed when its commanded openness is <= this.
         helper_max_force_n: strength of the helper constraint [N].
-        squeeze_rad: a finger touching a graspable body closes at most this far past the
-            joint angles where it met it [rad] (module docstring: contact stall).
-        stall_lead_rad: a finger counts as closing (for the contact stall) when its command
-            is this much more closed than its joints [rad]; a contact can push an open
-            finger against its open stop by a hundredth of a radian, which is not closing.
+        squeeze_share: a finger touching a graspable body closes at most this share of each
+            joint's open-to-closed travel past the positions where it met it (module
+            docstring: contact stall; the iiwa hand's joints travel 1 rad: 0.3 rad).
+        stall_lead_share: a finger counts as closing (for the contact stall) when its
+            command is this share of the travel more closed than its joints; a contact can
+            push an open finger against its open stop by a hundredth of its travel, which
+            is not closing.
         pad_stiffness_n_per_m: contact stiffness of the finger links (rubber pads, 1 mm
             per 10 N, about a robot fingertip's pad) [N/m] ...
         pad_damping_n_s_per_m: ... and their contact damping [N s/m] (about critical for a
             20-30 g phalanx on that spring: 2 sqrt(k m) = 28-35 N s/m).
-        rest_posture_rad: null-space rest posture of the arm joints, by name [rad].
-        workspace: palm target clamp region.
         control_dt_s: simulated time of one control tick [s] (the loop's period).
     """
 
@@ -158,23 +163,14 @@ class RobotConfig:
     unreachable_tol_m: float = 0.01
     unreachable_tol_rad: float = math.radians(5.0)
     arm_force_nm: float = 300.0
-    arm_position_gain: float = 0.3
-    finger_force_nm: float = 0.6
-    thumb_force_nm: float = 1.8
     finger_position_gain: float = 0.3
     grasp_helper: bool = False
     helper_openness: float = 0.5
     helper_max_force_n: float = 40.0
-    squeeze_rad: float = 0.3
-    stall_lead_rad: float = 0.02
+    squeeze_share: float = 0.3
+    stall_lead_share: float = 0.02
     pad_stiffness_n_per_m: float = 1.0e4
     pad_damping_n_s_per_m: float = 30.0
-    rest_posture_rad: Mapping[str, float] = field(
-        default_factory=lambda: MappingProxyType(
-            dict(zip(ARM_JOINTS, (0.0, 0.45, 0.0, -1.45, 0.0, 1.2, 0.0), strict=True))
-        )
-    )
-    workspace: Workspace = field(default_factory=Workspace)
     control_dt_s: float = CONTROL_DT_S
 
     @classmethod
@@ -201,14 +197,11 @@ class RobotConfig:
             "unreachable_tol_m",
             "unreachable_tol_rad",
             "arm_force_nm",
-            "arm_position_gain",
-            "finger_force_nm",
-            "thumb_force_nm",
             "finger_position_gain",
             "helper_openness",
             "helper_max_force_n",
-            "squeeze_rad",
-            "stall_lead_rad",
+            "squeeze_share",
+            "stall_lead_share",
             "pad_stiffness_n_per_m",
             "pad_damping_n_s_per_m",
             "control_dt_s",
@@ -216,9 +209,6 @@ class RobotConfig:
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
                 raise ConfigError(f"robot config: {name} must be finite and > 0, got {v!r}")
-        missing = sorted(set(ARM_JOINTS) - set(self.rest_posture_rad))
-        if missing:
-            raise ConfigError(f"robot config: rest_posture_rad lacks joint {missing[0]!r}")
 
     @property
     def physics_dt_s(self) -> float:
@@ -251,9 +241,10 @@ class RobotState:
 
     Attributes:
         palm: achieved palm pose (forward kinematics) in the base frame; openness is the
-            commanded finger set-point (see module docstring), order `FINGER_NAMES`.
+            commanded finger set-point (see module docstring), order `finger_names`.
         openness_measured: (F,) openness measured from the finger joints, in [0, 1].
-        joint_positions_rad: every revolute joint's position by name [rad].
+        joint_positions_rad: every movable joint's position by name [rad, or m for a
+            prismatic joint].
         contacts: contact points of robot links with other bodies.
         target_clamped: the last position target lay outside the workspace and was moved.
         unreachable: the IK solution misses the (clamped) target by more than the tolerance.
@@ -300,6 +291,8 @@ class Robot:
         loaded: the loaded robot body with its joint and link tables.
         chain: the arm's kinematic chain (base -> palm), read from the same URDF.
         config: control and physics settings.
+        desc: the robot's description (arm joints, palm frame, fingers, rest posture,
+            workspace).
         body_names: names of other bodies, for contact reports.
         graspable: bodies the grasp helper may hold.
     """
@@ -310,10 +303,13 @@ class Robot:
         loaded: LoadedRobot,
         chain: ArmChain,
         config: RobotConfig,
+        desc: RobotDescription,
         body_names: Mapping[int, str] | None = None,
         graspable: tuple[int, ...] = (),
     ) -> None:
         self._c = client
+        self.desc = desc
+        self.workspace = Workspace.of(desc)
         self._graspable = frozenset(graspable)
         self._state_cache: RobotState | None = None
         self._held: int | None = None
@@ -324,37 +320,44 @@ class Robot:
         self._body = loaded.body
         self._names = dict(body_names or {})
         self._link_names = {i: n for n, i in loaded.links.items()}
-        self._palm = loaded.links[PALM_LINK]
-        self._arm = [loaded.joints[n] for n in ARM_JOINTS]
-        self._fingers: dict[str, tuple[JointInfo, ...]] = {
-            f: (loaded.joints[f"{f}_mcp"], loaded.joints[f"{f}_pip"]) for f in FINGER_NAMES
+        self._palm = loaded.links[desc.palm_frame_link]
+        self._arm = [loaded.joints[n] for n in desc.arm_joints]
+        fjoints = desc.finger_joints
+        self._finger_names = desc.finger_names
+        #: finger index of each finger joint; each finger's joint positions in that order
+        self._joint_finger = np.array(
+            [k for k, f in enumerate(desc.fingers) for _ in f.joints], dtype=np.intp
+        )
+        self._finger_slices = [
+            np.flatnonzero(self._joint_finger == k) for k in range(len(desc.fingers))
+        ]
+        #: contact group of each finger link (by link name), and the fingers of each group
+        self.link_group: dict[str, str] = {
+            self._link_names[loaded.joints[j.name].index]: j.group for j in fjoints
         }
+        self._group_fingers: dict[str, set[str]] = {}
+        for f in desc.fingers:
+            for j in f.joints:
+                self._group_fingers.setdefault(j.group, set()).add(f.name)
         movable = sorted(loaded.joints.values(), key=lambda j: j.index)
         self._chain = chain
-        self._q_rest = np.array([config.rest_posture_rad[n] for n in ARM_JOINTS])
+        self._q_rest = np.array(desc.rest_posture_rad)
         self._arm_idx = [j.index for j in self._arm]
         self._arm_lo = np.array([j.lower_rad for j in self._arm])
         self._arm_hi = np.array([j.upper_rad for j in self._arm])
-        self._finger_idx = [j.index for f in FINGER_NAMES for j in self._fingers[f]]
+        self._finger_idx = [loaded.joints[j.name].index for j in fjoints]
         self._arm_forces = [config.arm_force_nm] * len(self._arm)
-        self._arm_gains = [config.arm_position_gain] * len(self._arm)
+        self._arm_gains = [desc.arm_position_gain] * len(self._arm)
         self._finger_gains = [config.finger_position_gain] * len(self._finger_idx)
-        self._finger_forces = [
-            config.thumb_force_nm if f == "thumb" else config.finger_force_nm
-            for f in FINGER_NAMES
-            for _ in self._fingers[f]
-        ]
+        self._finger_forces = [f.force for f in desc.fingers for _ in f.joints]
         self._all_idx = [j.index for j in movable]
-        q_open = [JOINT_OPEN_CLOSED_RAD[j.name][0] for f in FINGER_NAMES for j in self._fingers[f]]
-        q_closed = [
-            JOINT_OPEN_CLOSED_RAD[j.name][1] for f in FINGER_NAMES for j in self._fingers[f]
-        ]
-        self._q_open = np.array(q_open)
-        self._q_closed = np.array(q_closed)
+        self._q_open = np.array([j.open for j in fjoints])
+        self._q_closed = np.array([j.closed for j in fjoints])
+        self._travel = np.abs(self._q_open - self._q_closed)
         self._sense = np.sign(self._q_closed - self._q_open)  # +1 where closing raises q
-        self._stall_q = np.full(2 * len(FINGER_NAMES), np.nan)  # per finger joint, NaN = free
+        self._stall_q = np.full(len(fjoints), np.nan)  # per finger joint, NaN = free
         self._t_s = 0.0
-        self._openness_cmd = np.ones(len(FINGER_NAMES))
+        self._openness_cmd = np.ones(len(desc.fingers))
         self._q_arm_cmd = self._q_rest.copy()
         self._clamped = False
         self._unreachable = False
@@ -366,21 +369,18 @@ class Robot:
             numSolverIterations=config.solver_iterations,
             physicsClientId=client,
         )
-        for j in loaded.joints.values():
+        for info in loaded.joints.values():
             # no extra damping: the position motors alone shape the response (the iiwa URDF's
             # 0.5 N m s/rad joint damping would fight the motors at every tick)
             pb.changeDynamics(
                 self._body,
-                j.index,
+                info.index,
                 linearDamping=0.0,
                 angularDamping=0.0,
-                jointDamping=0.0 if j.name in ARM_JOINTS else 0.01,
+                jointDamping=0.0 if info.name in desc.arm_joints else 0.01,
                 physicsClientId=client,
             )
-        finger_links = [
-            loaded.links[f"{f}_{p}"] for f in FINGER_NAMES for p in ("proximal", "distal")
-        ]
-        for li in finger_links:
+        for li in self._finger_idx:  # a joint's index is its child link's
             pb.changeDynamics(
                 self._body,
                 li,
@@ -406,11 +406,15 @@ class Robot:
     @property
     def finger_names(self) -> tuple[str, ...]:
         """Finger names in the order of the openness vector."""
-        return FINGER_NAMES
+        return self._finger_names
 
     def finger_joint_limits_rad(self) -> dict[str, tuple[float, float]]:
-        """(open, closed) angle of every finger joint, by joint name [rad]."""
-        return dict(JOINT_OPEN_CLOSED_RAD)
+        """(open, closed) position of every finger joint, by joint name [rad or m]."""
+        return {j.name: (j.open, j.closed) for j in self.desc.finger_joints}
+
+    def clamps(self, groups: set[str]) -> bool:
+        """`groups` touching (or closing on) a body clamp it: the opposing group and another."""
+        return self.desc.opposing in groups and len(groups) > 1
 
     # ------------------------------------------------------------------ control
     def reset_posture(self, p_m: Array, R: Array, openness: Array) -> None:
@@ -420,7 +424,7 @@ class Robot:
             InputError: if the pose is not reachable.
         """
         p_m = _as_vec(p_m, 3, "position")
-        g = np.clip(_as_vec(openness, len(FINGER_NAMES), "openness"), 0.0, 1.0)
+        g = np.clip(_as_vec(openness, len(self._finger_names), "openness"), 0.0, 1.0)
         res = self._chain.ik(
             p_m, np.asarray(R, dtype=np.float64), self._q_rest, self._q_rest, iterations=100
         )
@@ -454,11 +458,11 @@ class Robot:
         R = np.asarray(rotation, dtype=np.float64)
         if R.shape != (3, 3) or not np.isfinite(R).all():
             raise InputError(f"rotation must be a finite 3x3 matrix, got shape {R.shape}")
-        g = np.clip(_as_vec(openness, len(FINGER_NAMES), "openness"), 0.0, 1.0)
+        g = np.clip(_as_vec(openness, len(self._finger_names), "openness"), 0.0, 1.0)
         # R^T R = I and det R = +1 (the triple product, not LAPACK: see kinematics._solve_spd)
         if float(np.abs(R.T @ R - np.eye(3)).max()) > 1e-3 or _det3(R) < 0.0:
             raise InputError("rotation must be a proper rotation matrix (R^T R = I, det +1)")
-        p_c, self._clamped = self.config.workspace.clamp(p)
+        p_c, self._clamped = self.workspace.clamp(p)
         q = self._solve_ik(p_c, R, self.config.ik_iterations)
         if np.isfinite(q).all():
             self._q_arm_cmd = np.clip(q, self._arm_lo, self._arm_hi)
@@ -478,7 +482,7 @@ class Robot:
         q_f = self._finger_q(self._openness_cmd)
         # Contact stall: a finger stops where it met the object (plus a squeeze) instead of
         # driving its pad into it; NaN entries (free fingers) leave the command as it is.
-        limit = self._stall_q + self._sense * self.config.squeeze_rad
+        limit = self._stall_q + self._sense * self._travel * self.config.squeeze_share
         q_f = np.where(self._sense * (q_f - limit) > 0.0, limit, q_f)
         pb.setJointMotorControlArray(
             self._body,
@@ -491,7 +495,7 @@ class Robot:
         )
 
     def _finger_q(self, g: Array) -> Array:
-        per_joint = np.repeat(g, 2)
+        per_joint = g[self._joint_finger]
         return self._q_closed + per_joint * (self._q_open - self._q_closed)
 
     def _solve_ik(self, p_m: Array, R: Array, iterations: int) -> Array:
@@ -512,6 +516,31 @@ class Robot:
         )
         return res.q_rad
 
+    def follow(self, joint_positions: Mapping[str, float], openness: Array) -> None:
+        """Command every arm and finger joint to a measured position (by name; joints not
+        given hold), and take `openness` as the finger command: this robot is the twin of
+        one outside this world (`env.KitchenEnv.follow`); applied by the next `step()`."""
+        self._state_cache = None
+        g = np.clip(_as_vec(openness, len(self._finger_names), "openness"), 0.0, 1.0)
+        self._openness_cmd = g
+        for k, arm_joint in enumerate(self._arm):
+            if arm_joint.name in joint_positions:
+                self._q_arm_cmd[k] = float(joint_positions[arm_joint.name])
+        q_f = self._finger_q(g)
+        for k, name in enumerate(j.name for j in self.desc.finger_joints):
+            if name in joint_positions:
+                q_f[k] = float(joint_positions[name])
+        pb.setJointMotorControlArray(
+            self._body, self._arm_idx, pb.POSITION_CONTROL,
+            targetPositions=self._q_arm_cmd.tolist(), forces=self._arm_forces,
+            positionGains=self._arm_gains, physicsClientId=self._c,
+        )  # fmt: skip
+        pb.setJointMotorControlArray(
+            self._body, self._finger_idx, pb.POSITION_CONTROL,
+            targetPositions=q_f.tolist(), forces=self._finger_forces,
+            positionGains=self._finger_gains, physicsClientId=self._c,
+        )  # fmt: skip
+
     def step(self) -> None:
         """Advance the physics by one control tick (`control_dt_s`) under the current targets."""
         self._state_cache = None
@@ -523,23 +552,37 @@ class Robot:
         if self.config.grasp_helper:
             self._update_helper()
 
+    def touching_groups(self, body: int, others: str | None = None) -> set[str]:
+        """The finger contact groups whose links touch `body` (as of the last step); with
+        `others`, a link of no finger (the palm, the arm) counts as that group."""
+        return {
+            g
+            for c in self._contacts
+            if c.other_body == body and (g := self.link_group.get(c.robot_link, others)) is not None
+        }
+
+    def closed_groups(self, threshold: float) -> set[str]:
+        """The contact groups of the fingers commanded at most `threshold` open."""
+        closed = {
+            f for f, g in zip(self._finger_names, self._openness_cmd, strict=True) if g <= threshold
+        }
+        return {grp for grp, fs in self._group_fingers.items() if fs & closed}
+
     def _update_stall(self) -> None:
-        """Latch each finger's joint angles when it touches a graspable body that the thumb
-        and an opposing finger clamp, while closing; free it when its command opens past
+        """Latch each finger's joint positions when it touches a graspable body that the
+        opposing group and another clamp, while closing; free it when its command opens past
         that point (module docstring: contact stall)."""
-        by_body: dict[int, set[str]] = {}
-        for c in self._contacts:
-            if c.other_body in self._graspable:
-                by_body.setdefault(c.other_body, set()).add(c.robot_link.split("_")[0])
-        clamped: set[str] = set()  # fingers touching a body clamped between thumb and finger
-        for fingers in by_body.values():
-            if "thumb" in fingers and len(fingers) > 1:
-                clamped |= fingers
+        clamped: set[str] = set()  # fingers touching a body clamped between two groups
+        for body in self._graspable:
+            # a body between the opposing fingers and the palm (or the arm) is clamped too
+            groups = self.touching_groups(body, others=" body")
+            if self.clamps(groups):
+                for grp in groups:
+                    clamped |= self._group_fingers.get(grp, set())
         q_cmd = self._finger_q(self._openness_cmd)
         changed = False
         states: list[tuple[float, ...]] | None = None
-        for k, f in enumerate(FINGER_NAMES):
-            sl = slice(2 * k, 2 * k + 2)
+        for f, sl in zip(self._finger_names, self._finger_slices, strict=True):
             stalled = not np.isnan(self._stall_q[sl]).any()
             if stalled:
                 # opened past the contact posture: the finger is free again
@@ -551,34 +594,24 @@ class Robot:
                     states = pb.getJointStates(
                         self._body, self._finger_idx, physicsClientId=self._c
                     )
-                q_now = np.array([states[2 * k][0], states[2 * k + 1][0]])
+                q_now = np.array([states[i][0] for i in sl])
                 lead = self._sense[sl] * (q_cmd[sl] - q_now)
-                if (lead > self.config.stall_lead_rad).any():  # still closing
+                if (lead > self.config.stall_lead_share * self._travel[sl]).any():  # closing
                     self._stall_q[sl] = q_now
                     changed = True
         if changed:
             self._apply_fingers()
 
-    def _closed(self) -> tuple[bool, frozenset[str]]:
-        thr = self.config.helper_openness
-        closed = {f for f, g in zip(FINGER_NAMES, self._openness_cmd, strict=True) if g <= thr}
-        return "thumb" in closed and len(closed) > 1, frozenset(closed)
-
     def _update_helper(self) -> None:
-        closed, fingers = self._closed()
+        closed = self.closed_groups(self.config.helper_openness)
         if self._helper_cid is not None:
-            if not closed:
+            if not self.clamps(closed):
                 self.release()
             return
-        if not closed:
+        if not self.clamps(closed):
             return
-        touching: dict[int, set[str]] = {}
-        for c in self._contacts:
-            if c.other_body in self._graspable:
-                touching.setdefault(c.other_body, set()).add(c.robot_link.split("_")[0])
-        for body, links in touching.items():
-            fs = links & fingers
-            if "thumb" in fs and len(fs) > 1:
+        for body in sorted(self._graspable):
+            if self.clamps(self.touching_groups(body) & closed):
                 self._engage(body)
                 return
 
@@ -636,14 +669,15 @@ class Robot:
         return np.array(ls[4], dtype=np.float64), R_from_quat_xyzw(ls[5])
 
     def openness_measured(self, q_by_index: Mapping[int, float] | None = None) -> Array:
-        """Openness of each finger from its joint angles, mean over its joints, in [0, 1]."""
+        """Openness of each finger from its joint positions, mean over its joints, in [0, 1]."""
         if q_by_index is None:
             states = pb.getJointStates(self._body, self._finger_idx, physicsClientId=self._c)
             q = np.array([s[0] for s in states])
         else:
             q = np.array([q_by_index[i] for i in self._finger_idx])
         g = (q - self._q_closed) / (self._q_open - self._q_closed)
-        return np.asarray(np.clip(0.5 * (g[0::2] + g[1::2]), 0.0, 1.0))  # mean of mcp, pip
+        per_finger = np.bincount(self._joint_finger, g) / np.bincount(self._joint_finger)
+        return np.asarray(np.clip(per_finger, 0.0, 1.0))  # mean over each finger's joints
 
     def contacts(self) -> tuple[Contact, ...]:
         """Contact points of the robot's links with other bodies, as of the last step."""

@@ -14,22 +14,29 @@ builds it with `RobotConfig.for_period(1 / rate)`, and each step is then 1/rate 
 `reset` rebuilds the whole simulation (resetSimulation + load), so the same seed and the same
 commands give the same run bit for bit. A viewer calls `geometry()` once per reset and
 `poses()` each tick.
+
+The robot is any robot description (`EnvConfig.description`, default the iiwa). `step()` is
+the two halves `step_robot()` (the physics of one tick) and `observe_task()` (the task's
+bookkeeping); a task judging a robot outside this world drives the robot here as a twin of
+the measured one instead (`follow`, docs/ARCHITECTURE.md).
 """
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 
+from dsteleop.arbitration.se3 import so3_exp
 from dsteleop.errors import ConfigError, InputError
 from dsteleop.robot.arm import Robot, RobotConfig, RobotState
 from dsteleop.robot.bullet import pb
-from dsteleop.robot.hand_urdf import FINGER_NAMES
+from dsteleop.robot.description import RobotDescription, load_description
 from dsteleop.robot.kinematics import ArmChain
-from dsteleop.robot.model import ARM_JOINTS, LoadedRobot, load_robot, robot_urdf_text
+from dsteleop.robot.model import LoadedRobot, load_robot, palm_tip_joints, robot_urdf_text
 from dsteleop.robot.scene import SceneGeometry, ScenePoses, VisualGeometry, VisualKind
 from dsteleop.robot.task import (
     PickPlaceTask,
@@ -70,16 +77,26 @@ class EnvConfig:
     Attributes:
         robot: control and physics settings of the robot.
         task: task settings (goal noise, timeout, ...).
-        home_position_m: palm position at reset, above the holder [m].
         place_position_m: true place goal: palm above the bin centre [m].
         settle_s: simulated time the scene settles after a reset, robot holding home [s].
+        description: the robot (default: the iiwa with the four-finger hand).
     """
 
     robot: RobotConfig = field(default_factory=RobotConfig)
     task: TaskConfig = field(default_factory=TaskConfig)
-    home_position_m: tuple[float, float, float] = (0.58, 0.30, 0.50)
     place_position_m: tuple[float, float, float] = (BIN_CENTER_M[0], BIN_CENTER_M[1], 0.45)
     settle_s: float = 1.0
+    description: RobotDescription = field(default_factory=lambda: load_description("iiwa"))
+
+    @property
+    def home_position_m(self) -> tuple[float, float, float]:
+        """Palm position at reset [m] (the robot's home, above the holder)."""
+        return self.description.home_position_m
+
+    @property
+    def home_rotation(self) -> Array:
+        """Palm orientation at reset (the robot's home: palm down for both shipped robots)."""
+        return so3_exp(np.asarray(self.description.home_rotvec_rad, dtype=np.float64))
 
 
 def _regions() -> SceneRegions:
@@ -106,8 +123,11 @@ class KitchenEnv:
     def __init__(self, config: EnvConfig | None = None) -> None:
         self.config = config or EnvConfig()
         self._c = pb.connect(pb.DIRECT)
-        self._urdf_text = robot_urdf_text()
-        self._chain = ArmChain.from_urdf(self._urdf_text, ARM_JOINTS, "flange_to_palm")
+        desc = self.config.description
+        self._urdf_text = robot_urdf_text(desc)
+        self._chain = ArmChain.from_urdf(
+            self._urdf_text, desc.arm_joints, palm_tip_joints(desc, self._urdf_text)
+        )
         self._robot: Robot | None = None
         self._loaded: LoadedRobot | None = None
         self._world: WorldBodies | None = None
@@ -161,11 +181,13 @@ class KitchenEnv:
             self._loaded,
             self._chain,
             self.config.robot,
+            self.config.description,
             self._world.names,
             tuple(self._world.utensils.values()),
         )
         home = np.asarray(self.config.home_position_m, dtype=np.float64)
-        self._robot.reset_posture(home, R_PALM_DOWN, np.ones(len(FINGER_NAMES)))
+        n_fingers = len(self.config.description.fingers)
+        self._robot.reset_posture(home, self.config.home_rotation, np.ones(n_fingers))
         for _ in range(round(self.config.settle_s / self.config.robot.control_dt_s)):
             self._robot.step()
         self._robot.reset_clock()
@@ -173,7 +195,7 @@ class KitchenEnv:
         pick = self._grasp_pose(utensil)
         place = (np.asarray(self.config.place_position_m, dtype=np.float64), R_PALM_DOWN.copy())
         self._task = PickPlaceTask(
-            self.config.task, utensil, pick, place, _regions(), len(FINGER_NAMES), seed
+            self.config.task, utensil, pick, place, _regions(), n_fingers, seed
         )
         state = self._robot.state()
         self._task.start(state.palm, state.t_s)
@@ -220,11 +242,26 @@ class KitchenEnv:
 
     def step(self) -> RobotState:
         """One control tick: physics, then task bookkeeping. Returns the robot state."""
-        robot = self.robot
-        robot.step()
-        state = robot.state()
+        self.step_robot()
+        return self.observe_task()
+
+    def step_robot(self) -> None:
+        """The physics of one control tick under the current targets."""
+        self.robot.step()
+
+    def observe_task(self) -> RobotState:
+        """The task's bookkeeping after the physics of a tick (`last_events`); returns the
+        robot's state."""
+        state = self.robot.state()
         self.last_events = self.task.update(self._observe(state))
         return state
+
+    def follow(self, joint_positions: Mapping[str, float], openness: Array) -> None:
+        """Drive the robot of this world towards measured joint positions (by name; the
+        finger joints' too) with the measured finger command, and step one tick of physics:
+        the twin of a robot that is not in this world (docs/ARCHITECTURE.md)."""
+        self.robot.follow(joint_positions, openness)
+        self.robot.step()
 
     def state(self) -> RobotState:
         """The robot's current state."""
@@ -233,18 +270,15 @@ class KitchenEnv:
     def _observe(self, state: RobotState) -> TaskObservation:
         p, _ = pb.getBasePositionAndOrientation(self._utensil_id, physicsClientId=self._c)
         name = self.task.utensil
-        touching_fingers = {
-            c.robot_link.split("_")[0] for c in state.contacts if c.other_body == self._utensil_id
-        }
-        closed = {f for f, g in zip(FINGER_NAMES, state.palm.openness, strict=True) if g <= 0.5}
-        by_fingers = "thumb" in (touching_fingers & closed) and len(touching_fingers & closed) > 1
+        robot = self.robot
+        gripping = robot.touching_groups(self._utensil_id) & robot.closed_groups(0.5)
+        by_fingers = robot.clamps(gripping)
         return TaskObservation(
             t_s=state.t_s,
             palm=state.palm,
             p_utensil_m=np.array(p, dtype=np.float64),
             held=state.grasped == name or by_fingers,
-            touching=bool(touching_fingers)
-            or any(c.other_body == self._utensil_id for c in state.contacts),
+            touching=any(c.other_body == self._utensil_id for c in state.contacts),
         )
 
     def _grasp_pose(self, name: str) -> tuple[Array, Array]:

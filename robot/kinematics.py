@@ -254,18 +254,27 @@ class ArmChain:
         self._z_axes = bool(np.allclose(self.axes, [0.0, 0.0, 1.0]))
 
     @classmethod
-    def from_urdf(cls, text: str, joint_names: tuple[str, ...], tip_joint: str) -> ArmChain:
-        """Read the chain `joint_names` (in order) then the fixed `tip_joint` from URDF text."""
+    def from_urdf(
+        cls, text: str, joint_names: tuple[str, ...], tip_joint: str | tuple[str, ...]
+    ) -> ArmChain:
+        """Read the chain `joint_names` (in order) then the fixed `tip_joint` (or several, in
+        order from the last arm joint, composed into one tip transform) from URDF text."""
         root = ET.fromstring(text)
         joints = {j.get("name"): j for j in root.iter("joint")}
-        fixed, axes, lo, hi = [], [], [], []
-        for n in (*joint_names, tip_joint):
+        tips = (tip_joint,) if isinstance(tip_joint, str) else tuple(tip_joint)
+        fixed: list[Array] = []
+        axes: list[list[float]] = []
+        lo: list[float] = []
+        hi: list[float] = []
+        for n in (*joint_names, *tips):
             j = joints.get(n)
             if j is None:
                 raise InputError(f"URDF has no joint {n!r}")
-            fixed.append(_origin(j))
-            if n == tip_joint:
+            if n in tips:
+                T = _origin(j)
+                fixed.append(T if n == tips[0] else fixed.pop() @ T)
                 continue
+            fixed.append(_origin(j))
             ax = j.find("axis")
             axes.append(
                 [float(v) for v in (ax.get("xyz", "1 0 0") if ax is not None else "1 0 0").split()]

@@ -156,7 +156,7 @@ def test_unreachable_target_is_clamped_and_reported_without_nan(
     assert state.palm.is_finite()
     assert np.isfinite(list(state.joint_positions_rad.values())).all()
     assert np.isfinite(state.openness_measured).all()
-    ws = env.config.robot.workspace
+    ws = env.robot.workspace
     clamped, moved = ws.clamp(p_cmd)
     assert moved
     # the robot went to (or towards) the clamped target, not beyond the workspace

@@ -1,0 +1,446 @@
+"""A robot is a description, not code: one small TOML file per robot (docs/robots.md).
+
+A description names the robot's URDF (from the installed `pybullet_data`, or a file beside
+the description), an optional hand mounted on the arm (a second URDF and the fixed joint that
+joins them), the arm's joints and rest posture, the palm link and the palm frame in it, the
+fingers (each finger: its joints, each joint's open and closed position, the motor effort,
+and the human fingers whose openness it follows), the home pose and the velocity and
+workspace limits. `robot/robots/` ships `iiwa.toml` (the KUKA iiwa with the project's
+four-finger hand) and `panda.toml` (the Franka Panda of `pybullet_data` with its two-finger
+gripper: one finger, `gripper`, whose openness drives both jaws).
+
+`load_description(NAME_OR_FILE)` reads and validates one: a shipped name, or a path to a
+`.toml` file. Everything wrong with it (a malformed file, a missing field, a joint or link
+the URDF does not have) is one `InputError` naming the file and the field. Nothing is read
+from the network: URDFs come from installed packages or the repository.
+
+The palm frame (docs/robot.md): origin where the fingers start (the palm's inner face),
++z the approach direction (the way open fingers point), the fingers close along y. The task
+(`robot.task`) and the demo operator are written in this frame, so a new robot fits the
+kitchen task when its palm frame follows it.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from dsteleop.errors import InputError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+#: Where the shipped descriptions live; `--robot NAME` looks here.
+ROBOTS_DIR = Path(__file__).resolve().parent / "robots"
+#: The robot of sessions recorded before robots were descriptions.
+DEFAULT_ROBOT = "iiwa"
+#: The human fingers a robot finger may follow (tracking.landmarks.FINGER_NAMES).
+HUMAN_FINGERS = ("thumb", "index", "middle", "ring", "little")
+PYBULLET_DATA = "pybullet_data:"
+
+
+@dataclass(frozen=True)
+class FingerJoint:
+    """One joint of a finger.
+
+    Attributes:
+        name: URDF joint name (revolute [rad] or prismatic [m]).
+        open: its position when the finger is open (openness 1) [rad or m].
+        closed: its position when the finger is closed (openness 0) [rad or m].
+        group: its link's contact group: a body is clamped when the links of the
+            description's `opposing` group and of another group touch it.
+    """
+
+    name: str
+    open: float
+    closed: float
+    group: str
+
+
+@dataclass(frozen=True)
+class Finger:
+    """One openness dimension of the robot.
+
+    Attributes:
+        name: the dimension's name ("thumb", "gripper", ...).
+        joints: its joints; openness g sets each to closed + g (open - closed).
+        force: motor effort limit of each of its joints [N m, or N for prismatic joints].
+        human: the human fingers whose mean openness it follows (the mapping).
+    """
+
+    name: str
+    joints: tuple[FingerJoint, ...]
+    force: float
+    human: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Mount:
+    """A hand mounted on the arm: its URDF joined to the arm by a fixed joint.
+
+    Attributes:
+        urdf: the hand's URDF (module docstring: where URDFs come from).
+        joint: name of the fixed joint that joins them.
+        parent_link: the arm's link the hand is mounted on.
+        child_link: the hand's root link.
+        xyz_m: the hand root's position in the parent link frame [m].
+        rpy_rad: its orientation (roll, pitch, yaw) [rad].
+    """
+
+    urdf: str
+    joint: str
+    parent_link: str
+    child_link: str
+    xyz_m: tuple[float, float, float]
+    rpy_rad: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class RobotDescription:
+    """A robot (module docstring); build with `load_description`.
+
+    Attributes:
+        name: short name (`--robot NAME`).
+        title: one line for people.
+        path: the description file.
+        urdf: the arm's URDF.
+        mount: a hand mounted on the arm, or None (the URDF has its own).
+        arm_joints: the arm's revolute joints from base to wrist.
+        rest_posture_rad: the arm's null-space rest posture, per arm joint [rad].
+        arm_position_gain: PyBullet position gain of the arm's motors (how stiffly they
+            hold a command against gravity: the Panda's lighter joints need 1.0, the iiwa
+            0.3).
+        palm_link: the link the palm frame is fixed to.
+        palm_xyz_m: the palm frame's origin in that link's frame [m].
+        palm_rpy_rad: its orientation [rad].
+        fingers: the openness dimensions, in order.
+        opposing: the contact group that opposes the others (a clamp needs it and another).
+        home_position_m: palm position at a reset, base frame [m].
+        home_rotvec_rad: palm orientation at a reset, rotation vector [rad].
+        workspace_min_m: lower corner of the box palm targets are clamped into [m].
+        workspace_max_m: upper corner [m].
+        shoulder_m: centre of the reach sphere [m].
+        reach_m: radius of the reach sphere for the palm origin [m].
+        max_speed_m_s: palm linear speed limit [m/s].
+        max_rate_rad_s: palm angular speed limit [rad/s].
+        max_finger_rate_per_s: openness rate limit [1/s].
+    """
+
+    name: str
+    title: str
+    path: Path
+    urdf: str
+    mount: Mount | None
+    arm_joints: tuple[str, ...]
+    rest_posture_rad: tuple[float, ...]
+    arm_position_gain: float
+    palm_link: str
+    palm_xyz_m: tuple[float, float, float]
+    palm_rpy_rad: tuple[float, float, float]
+    fingers: tuple[Finger, ...]
+    opposing: str
+    home_position_m: tuple[float, float, float]
+    home_rotvec_rad: tuple[float, float, float]
+    workspace_min_m: tuple[float, float, float]
+    workspace_max_m: tuple[float, float, float]
+    shoulder_m: tuple[float, float, float]
+    reach_m: float
+    max_speed_m_s: float
+    max_rate_rad_s: float
+    max_finger_rate_per_s: float
+
+    @property
+    def finger_names(self) -> tuple[str, ...]:
+        """The openness dimensions' names, in order."""
+        return tuple(f.name for f in self.fingers)
+
+    @property
+    def finger_joints(self) -> tuple[FingerJoint, ...]:
+        """Every finger joint, finger by finger."""
+        return tuple(j for f in self.fingers for j in f.joints)
+
+    @property
+    def palm_frame_link(self) -> str:
+        """The link whose frame is the palm frame: `palm_link` itself when the offset is
+        zero, else a massless link `dsteleop_palm` fixed to it (`robot.model`)."""
+        if any(self.palm_xyz_m) or any(self.palm_rpy_rad):
+            return "dsteleop_palm"
+        return self.palm_link
+
+    def resolve(self, ref: str) -> Path:
+        """The file a URDF reference names (`pybullet_data:PATH`, or a path relative to the
+        description file)."""
+        if ref.startswith(PYBULLET_DATA):
+            import pybullet_data
+
+            return Path(pybullet_data.getDataPath()) / ref[len(PYBULLET_DATA) :]
+        p = Path(ref)
+        return p if p.is_absolute() else (self.path.parent / p).resolve()
+
+    def to_dict(self) -> dict[str, Any]:
+        """What a session records: the name and the file (and its text, so a replay
+        elsewhere can rebuild it)."""
+        return {"name": self.name, "path": str(self.path), "text": self.path.read_text()}
+
+
+def shipped_robots() -> tuple[str, ...]:
+    """Names of the descriptions in `ROBOTS_DIR`."""
+    return tuple(sorted(p.stem for p in ROBOTS_DIR.glob("*.toml")))
+
+
+def description_path(name_or_file: str) -> Path:
+    """The file `--robot NAME|FILE` names.
+
+    Raises:
+        InputError: no shipped robot of that name and no such file.
+    """
+    p = Path(name_or_file)
+    if p.suffix == ".toml" or p.is_file():
+        if not p.is_file():
+            raise InputError(f"--robot: no such robot description file: {name_or_file}")
+        return p.resolve()
+    shipped = ROBOTS_DIR / f"{name_or_file}.toml"
+    if shipped.is_file():
+        return shipped
+    raise InputError(
+        f"--robot: unknown robot {name_or_file!r} (shipped: {', '.join(shipped_robots())}; "
+        "or a .toml file)"
+    )
+
+
+def load_description(name_or_file: str) -> RobotDescription:
+    """Read and validate a robot description (module docstring).
+
+    Raises:
+        InputError: the file is missing or malformed, or a field is wrong (one line).
+    """
+    path = description_path(name_or_file)
+    try:
+        data = tomllib.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise InputError(f"robot description {path}: not valid TOML ({exc})") from None
+    desc = _parse(data, path)
+    check_against_urdf(desc)
+    return desc
+
+
+def description_from_record(meta: dict[str, Any] | None) -> RobotDescription:
+    """The robot a session recorded (`meta["robot"]["description"]`), or the iiwa for a
+    session recorded before robots were descriptions. A recorded description whose file is
+    gone is rebuilt from its recorded text."""
+    rec = (meta or {}).get("description")
+    if not isinstance(rec, dict):
+        return load_description(DEFAULT_ROBOT)
+    path = Path(str(rec.get("path", "")))
+    if path.is_file() and path.read_text() == rec.get("text"):
+        return load_description(str(path))
+    name = str(rec.get("name", ""))
+    shipped = ROBOTS_DIR / f"{name}.toml"
+    if shipped.is_file() and shipped.read_text() == rec.get("text"):
+        return load_description(name)
+    raise InputError(
+        f"the session's robot {name!r} was described by {path}, which is gone or changed; "
+        "give --robot NAME|FILE"
+    )
+
+
+# --------------------------------------------------------------------------- parsing
+
+
+class _Fields:
+    """Typed access to one TOML table, with errors naming the file and the field."""
+
+    def __init__(self, data: Any, path: Path, where: str = "") -> None:
+        if not isinstance(data, dict):
+            raise InputError(f"robot description {path}: {where or 'the file'} must be a table")
+        self.d, self.path, self.where = data, path, where
+
+    def _name(self, key: str) -> str:
+        return f"{self.where}.{key}" if self.where else key
+
+    def fail(self, key: str, what: str) -> InputError:
+        return InputError(f"robot description {self.path}: {self._name(key)} {what}")
+
+    def has(self, key: str) -> bool:
+        return key in self.d
+
+    def get(self, key: str) -> Any:
+        if key not in self.d:
+            raise self.fail(key, "is missing")
+        return self.d[key]
+
+    def text(self, key: str) -> str:
+        v = self.get(key)
+        if not isinstance(v, str) or not v:
+            raise self.fail(key, f"must be a non-empty string, got {v!r}")
+        return v
+
+    def num(self, key: str, positive: bool = False) -> float:
+        v = self.get(key)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise self.fail(key, f"must be a finite number, got {v!r}")
+        if positive and v <= 0:
+            raise self.fail(key, f"must be > 0, got {v!r}")
+        return float(v)
+
+    def vec3(self, key: str, default: tuple[float, float, float] | None = None) -> Any:
+        if default is not None and key not in self.d:
+            return default
+        v = self.get(key)
+        ok = isinstance(v, list) and len(v) == 3
+        ok = ok and all(not isinstance(x, bool) and isinstance(x, (int, float)) for x in v)
+        if not ok or not all(math.isfinite(x) for x in v):
+            raise self.fail(key, f"must be 3 finite numbers, got {v!r}")
+        return (float(v[0]), float(v[1]), float(v[2]))
+
+    def strs(self, key: str) -> tuple[str, ...]:
+        v = self.get(key)
+        if not isinstance(v, list) or not v or not all(isinstance(x, str) and x for x in v):
+            raise self.fail(key, f"must be a non-empty list of names, got {v!r}")
+        return tuple(v)
+
+    def nums(self, key: str, n: int) -> tuple[float, ...]:
+        v = self.get(key)
+        ok = isinstance(v, list) and len(v) == n
+        ok = ok and all(not isinstance(x, bool) and isinstance(x, (int, float)) for x in v)
+        if not ok or not all(math.isfinite(x) for x in v):
+            raise self.fail(key, f"must be {n} finite numbers, got {v!r}")
+        return tuple(float(x) for x in v)
+
+    def table(self, key: str) -> _Fields:
+        return _Fields(self.get(key), self.path, self._name(key))
+
+    def tables(self, key: str) -> list[_Fields]:
+        v = self.get(key)
+        if not isinstance(v, list) or not v:
+            raise self.fail(key, "must be a non-empty list of tables")
+        return [_Fields(x, self.path, f"{self._name(key)}[{i}]") for i, x in enumerate(v)]
+
+
+def _parse(data: Any, path: Path) -> RobotDescription:
+    f = _Fields(data, path)
+    arm = f.table("arm")
+    arm_joints = arm.strs("joints")
+    mount = None
+    if f.has("mount"):
+        m = f.table("mount")
+        mount = Mount(
+            m.text("urdf"),
+            m.text("joint"),
+            m.text("parent_link"),
+            m.text("child_link"),
+            m.vec3("xyz_m", (0.0, 0.0, 0.0)),
+            m.vec3("rpy_rad", (0.0, 0.0, 0.0)),
+        )
+    palm = f.table("palm")
+    fingers = []
+    for t in f.tables("fingers"):
+        name = t.text("name")
+        joints = []
+        for jt in t.tables("joints"):
+            o, c = jt.num("open"), jt.num("closed")
+            if o == c:
+                raise jt.fail("closed", "must differ from open")
+            group = jt.text("group") if jt.has("group") else name
+            joints.append(FingerJoint(jt.text("name"), o, c, group))
+        human = t.strs("human")
+        bad = [h for h in human if h not in HUMAN_FINGERS]
+        if bad:
+            raise t.fail("human", f"names no human finger: {bad} (of {', '.join(HUMAN_FINGERS)})")
+        fingers.append(Finger(name, tuple(joints), t.num("force", positive=True), human))
+    names = [x.name for x in fingers]
+    if len(set(names)) != len(names):
+        raise f.fail("fingers", f"has a name twice: {names}")
+    grip = f.table("grip")
+    opposing = grip.text("opposing")
+    groups = {j.group for x in fingers for j in x.joints}
+    if opposing not in groups or len(groups) < 2:
+        raise grip.fail(
+            "opposing", f"must be one of two or more finger contact groups {sorted(groups)}"
+        )
+    home = f.table("home")
+    lim = f.table("limits")
+    lo, hi = lim.vec3("workspace_min_m"), lim.vec3("workspace_max_m")
+    if not all(a < b for a, b in zip(lo, hi, strict=True)):
+        raise lim.fail("workspace_min_m", "must be below workspace_max_m on every axis")
+    desc = RobotDescription(
+        name=f.text("name"),
+        title=f.text("title") if f.has("title") else f.text("name"),
+        path=path,
+        urdf=arm.text("urdf"),
+        mount=mount,
+        arm_joints=arm_joints,
+        rest_posture_rad=arm.nums("rest_posture_rad", len(arm_joints)),
+        arm_position_gain=arm.num("position_gain", positive=True),
+        palm_link=palm.text("link"),
+        palm_xyz_m=palm.vec3("xyz_m", (0.0, 0.0, 0.0)),
+        palm_rpy_rad=palm.vec3("rpy_rad", (0.0, 0.0, 0.0)),
+        fingers=tuple(fingers),
+        opposing=opposing,
+        home_position_m=home.vec3("position_m"),
+        home_rotvec_rad=home.vec3("rotvec_rad"),
+        workspace_min_m=lo,
+        workspace_max_m=hi,
+        shoulder_m=lim.vec3("shoulder_m"),
+        reach_m=lim.num("reach_m", positive=True),
+        max_speed_m_s=lim.num("max_speed_m_s", positive=True),
+        max_rate_rad_s=lim.num("max_rate_rad_s", positive=True),
+        max_finger_rate_per_s=lim.num("max_finger_rate_per_s", positive=True),
+    )
+    if not all(a <= b <= c for a, b, c in zip(lo, desc.home_position_m, hi, strict=True)):
+        raise home.fail("position_m", "must lie inside the workspace box")
+    return desc
+
+
+def _urdf_root(desc: RobotDescription, ref: str, field_name: str) -> ET.Element:
+    p = desc.resolve(ref)
+    if not p.is_file():
+        raise InputError(f"robot description {desc.path}: {field_name} {ref!r}: no file {p}")
+    try:
+        return ET.parse(p).getroot()
+    except ET.ParseError as exc:
+        raise InputError(f"robot description {desc.path}: {field_name} {p}: {exc}") from None
+
+
+def check_against_urdf(desc: RobotDescription) -> None:
+    """Every joint and link the description names exists in its URDF(s), with the right type.
+
+    Raises:
+        InputError: naming the first that does not.
+    """
+    roots = [_urdf_root(desc, desc.urdf, "arm.urdf")]
+    if desc.mount is not None:
+        roots.append(_urdf_root(desc, desc.mount.urdf, "mount.urdf"))
+    joints = {j.get("name"): j for r in roots for j in r.iter("joint")}
+    links = {ln.get("name") for r in roots for ln in r.iter("link")}
+
+    def fail(what: str) -> InputError:
+        return InputError(f"robot description {desc.path}: {what}")
+
+    for n in desc.arm_joints:
+        j = joints.get(n)
+        if j is None:
+            raise fail(f"arm.joints: the URDF has no joint {n!r}")
+        if j.get("type") != "revolute":
+            raise fail(f"arm.joints: {n!r} is {j.get('type')}, not revolute")
+    if desc.mount is not None:
+        for key, name in (
+            ("parent_link", desc.mount.parent_link),
+            ("child_link", desc.mount.child_link),
+        ):
+            if name not in links:
+                raise fail(f"mount.{key}: the URDF has no link {name!r}")
+    if desc.palm_link not in links:
+        raise fail(f"palm.link: the URDF has no link {desc.palm_link!r}")
+    for fj in desc.finger_joints:
+        j = joints.get(fj.name)
+        if j is None:
+            raise fail(f"fingers: the URDF has no joint {fj.name!r}")
+        if j.get("type") not in ("revolute", "prismatic"):
+            raise fail(f"fingers: joint {fj.name!r} is {j.get('type')}, not revolute or prismatic")
