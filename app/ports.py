@@ -5,23 +5,38 @@ module and never the loop, and the loop cannot tell implementations apart:
 
     HandInput   the operator: a camera, a video, the demo operator (through the tracking
                 pipeline and the workspace mapping), or a recorded session
-    Plant       the robot and its task: the PyBullet kitchen, a recorded robot, a test fake
+    Robot       the arm and its hand: reset, apply a command, read the measured state, its
+                limits and scene; a simulated PyBullet robot of any description, a linked
+                robot, a recorded robot, a test fake
+    Task        what the robot is asked to do and how it went: the goals (true, and as the
+                robot knows them, with noise), phases, events, outcome, reset; the kitchen
+                pick-and-place (judging any robot that can reach it), a recorded task, a fake
     Clock       time: the monotonic clock live, a manual clock headless and in tests
     Observer    anyone who sees the ticks: the browser view, the demo operator's eyes, a
                 recorder, a test; called once per tick from the loop's thread, and must not
                 block (a one-slot mailbox, `loop.broadcast`, decouples slow observers)
 
-The data that crosses them is typed here too: `HumanInput` (a mapped hand sample) and
-`PlantStep` (what the robot and the task report after a tick, with the task's own typed
-phase, events and outcome from `robot.task`, and the scene poses of `robot.scene`).
+The data that crosses them is typed here too: `HumanInput` (a mapped hand sample),
+`RobotState` and `RobotLimits` (the robot's measured state and its limits), `TaskStep` (the
+task's typed phase, events and outcome from `robot.task` after a tick, and the scene poses
+of `robot.scene`), and `PlantStep`, the two reports of a tick together as a record holds them.
+
+The Robot port's names are a contract shared with the linked robot (issue 25): fields may be
+added, none renamed.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
+import numpy as np
+from numpy.typing import NDArray
+
 from dsteleop.arbitration import HandState
+from dsteleop.arbitration.se3 import so3_exp, so3_log
+from dsteleop.errors import ConfigError
 from dsteleop.robot.scene import SceneGeometry, ScenePoses
 from dsteleop.robot.task import EventKind, Outcome, Phase, TaskEvent
 from dsteleop.tracking.types import HandSample
@@ -96,7 +111,7 @@ class HandInput(Protocol):
 
 @dataclass(frozen=True)
 class PlantStep:
-    """What the robot and the task report after one tick.
+    """What the robot and the task reported after one tick, together (a tick's record).
 
     Attributes:
         X_current: the robot's achieved palm state (base frame).
@@ -112,28 +127,162 @@ class PlantStep:
     outcome: Outcome | None = None
     scene: ScenePoses | None = None
 
+    @classmethod
+    def of(cls, X_current: HandState, step: TaskStep) -> PlantStep:
+        """The robot's achieved state and the task's report of one tick, together."""
+        return cls(X_current, step.phase, step.events, step.outcome, step.scene)
+
     @property
     def segment_changed(self) -> bool:
         """A new goal became active this tick (the place segment started)."""
         return any(e.kind is EventKind.GOAL for e in self.events)
 
 
-class Plant(Protocol):
-    """The robot and its task as the loop sees them."""
+#: A robot state older than this on the loop's clock means the robot is lost (halt) [s].
+ROBOT_STALE_S = 0.2
+ROBOT_LOST = "robot lost"
+
+
+@dataclass(frozen=True)
+class RobotLimits:
+    """What the robot allows: the palm's workspace box and speed limits (base frame).
+
+    Attributes:
+        workspace_min_m: lower corner of the palm position box [m].
+        workspace_max_m: upper corner [m].
+        max_speed_m_s: palm linear speed limit [m/s].
+        max_rate_rad_s: palm angular speed limit [rad/s].
+        max_finger_rate_per_s: openness change limit [1/s].
+    """
+
+    workspace_min_m: tuple[float, float, float]
+    workspace_max_m: tuple[float, float, float]
+    max_speed_m_s: float
+    max_rate_rad_s: float
+    max_finger_rate_per_s: float
+
+    def clamp(self, X_prev: HandState, X_cmd: HandState, dt_s: float) -> HandState:
+        """X_cmd inside the workspace box and within the speed limits from X_prev over dt_s:
+        the position step scaled to at most max_speed dt, then clipped into the box; the
+        rotation step (the rotation vector of R_cmd R_prev^T) scaled to at most max_rate
+        dt; each finger's change clipped to max_finger_rate dt, then into [0, 1]."""
+        dt = max(float(dt_s), 0.0)
+        dp = X_cmd.position - X_prev.position
+        n = float(np.linalg.norm(dp))
+        step = self.max_speed_m_s * dt
+        if n > step:
+            dp = dp * (step / n)
+        p = np.clip(X_prev.position + dp, self.workspace_min_m, self.workspace_max_m)
+        w = so3_log(X_cmd.rotation @ X_prev.rotation.T)
+        a = float(np.linalg.norm(w))
+        turn = self.max_rate_rad_s * dt
+        R = X_cmd.rotation if a <= turn else so3_exp(w * (turn / a)) @ X_prev.rotation
+        dg = np.clip(
+            X_cmd.openness - X_prev.openness,
+            -self.max_finger_rate_per_s * dt,
+            self.max_finger_rate_per_s * dt,
+        )
+        g = np.clip(X_prev.openness + dg, 0.0, 1.0)
+        return HandState(p, R, g)
+
+    def __post_init__(self) -> None:
+        for name in ("max_speed_m_s", "max_rate_rad_s", "max_finger_rate_per_s"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ConfigError(f"robot limits: {name} must be finite and > 0, got {v!r}")
+
+
+@dataclass(frozen=True)
+class RobotState:
+    """The robot as measured.
+
+    Attributes:
+        X: achieved palm pose (base frame) and finger openness in [0, 1] (the commanded
+            set-point of a simulated hand, `robot.arm`).
+        joints: joint positions [rad, or m for a prismatic joint], in the order of
+            `Robot.joint_names`.
+        stamp_s: when it was measured, on the loop's clock [s].
+    """
+
+    X: HandState
+    joints: NDArray[np.float64]
+    stamp_s: float
+
+
+class Robot(Protocol):
+    """The arm and its hand as the loop sees them (the contract of docs/ARCHITECTURE.md)."""
 
     @property
-    def finger_names(self) -> tuple[str, ...]: ...
+    def name(self) -> str: ...
 
-    def reset(self, utensil: str | None = None) -> HandState:
-        """Start the task again; returns the robot's state at the start."""
+    @property
+    def finger_names(self) -> tuple[str, ...]:
+        """The openness dimensions: ("thumb", "index", "middle", "ring"), ("gripper",)."""
+        ...
+
+    @property
+    def joint_names(self) -> tuple[str, ...]: ...
+
+    @property
+    def limits(self) -> RobotLimits: ...
+
+    def reset(self, now_s: float) -> RobotState:
+        """To the home pose; returns the state there."""
+        ...
+
+    def apply(self, X_cmd: HandState, seq: int, now_s: float) -> None:
+        """This tick's command (`seq` increases by one per tick). A simulated robot also
+        advances its physics by one loop period; a linked robot publishes it and returns."""
+        ...
+
+    def state(self, now_s: float) -> RobotState | None:
+        """The newest measured state; None = none yet. The loop treats a state whose
+        `stamp_s` is older than `ROBOT_STALE_S` as a lost robot (halt)."""
+        ...
+
+    def describe(self) -> dict[str, Any]:
+        """What rebuilds it (recorded with a session)."""
+        ...
+
+    def scene(self) -> SceneGeometry | None: ...
+
+    def close(self) -> None: ...
+
+
+@dataclass(frozen=True)
+class TaskStep:
+    """What the task reports after one tick.
+
+    Attributes:
+        phase: the task's phase after the tick.
+        events: task events of this tick.
+        outcome: the outcome, on the tick it is decided and after; None before.
+        scene: world poses of the scene's frames for a viewer, or None.
+    """
+
+    phase: Phase
+    events: tuple[TaskEvent, ...] = ()
+    outcome: Outcome | None = None
+    scene: ScenePoses | None = None
+
+
+class Task(Protocol):
+    """What the robot is asked to do, and how it went."""
+
+    def reset(self, utensil: str | None = None) -> None:
+        """Set the task up again (a new trial); the loop then resets the robot."""
         ...
 
     def goal(self) -> HandState | None:
         """The active goal as the robot knows it (noisy), or None once the task is done."""
         ...
 
-    def apply(self, X_next: HandState) -> PlantStep:
-        """Command the state, advance one tick, report."""
+    def true_goals(self) -> tuple[HandState, HandState]:
+        """The true (pick, place) palm poses, open hand, as a person watching sees them."""
+        ...
+
+    def update(self, state: RobotState) -> TaskStep:
+        """Judge the robot's measured state after a tick: phase, events, outcome."""
         ...
 
     def set_goal_noise(self, sigma_m: float) -> None:
@@ -141,11 +290,11 @@ class Plant(Protocol):
         ...
 
     def describe(self) -> dict[str, Any]:
-        """Everything that rebuilds the same plant (recorded with a session)."""
+        """Everything that rebuilds the same task (recorded with a session)."""
         ...
 
     def scene(self) -> SceneGeometry | None:
-        """The static scene description a viewer draws, or None."""
+        """The static scene description a viewer draws (the task's world), or None."""
         ...
 
     def close(self) -> None: ...

@@ -22,6 +22,7 @@ kitchen task when its palm frame follows it.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 import xml.etree.ElementTree as ET
@@ -130,6 +131,7 @@ class RobotDescription:
         max_speed_m_s: palm linear speed limit [m/s].
         max_rate_rad_s: palm angular speed limit [rad/s].
         max_finger_rate_per_s: openness rate limit [1/s].
+        text: the description file's text (recorded with a session).
     """
 
     name: str
@@ -154,6 +156,7 @@ class RobotDescription:
     max_speed_m_s: float
     max_rate_rad_s: float
     max_finger_rate_per_s: float
+    text: str = ""
 
     @property
     def finger_names(self) -> tuple[str, ...]:
@@ -186,7 +189,7 @@ class RobotDescription:
     def to_dict(self) -> dict[str, Any]:
         """What a session records: the name and the file (and its text, so a replay
         elsewhere can rebuild it)."""
-        return {"name": self.name, "path": str(self.path), "text": self.path.read_text()}
+        return {"name": self.name, "path": str(self.path), "text": self.text}
 
 
 def shipped_robots() -> tuple[str, ...]:
@@ -222,35 +225,35 @@ def load_description(name_or_file: str) -> RobotDescription:
     """
     path = description_path(name_or_file)
     try:
-        data = tomllib.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"robot description {path}: cannot be read ({exc})") from None
+    return _from_text(text, path)
+
+
+def _from_text(text: str, path: Path) -> RobotDescription:
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
         raise InputError(f"robot description {path}: not valid TOML ({exc})") from None
-    desc = _parse(data, path)
+    desc = dataclasses.replace(_parse(data, path), text=text)
     check_against_urdf(desc)
     return desc
 
 
 def description_from_record(meta: dict[str, Any] | None) -> RobotDescription:
-    """The robot a session recorded (`meta["robot"]["description"]`), or the iiwa for a
-    session recorded before robots were descriptions. A recorded description whose file is
-    gone is rebuilt from its recorded text."""
+    """The robot a session recorded (`meta["description"]`: its name, file and text), or
+    the iiwa for a session recorded before robots were descriptions. The recorded text is
+    what counts (the file may have changed or gone since); its URDFs are looked up as the
+    recorded file would have (installed packages, or beside it).
+
+    Raises:
+        InputError: the recorded description no longer loads (a URDF beside it is gone).
+    """
     rec = (meta or {}).get("description")
-    if not isinstance(rec, dict):
+    if not isinstance(rec, dict) or not isinstance(rec.get("text"), str):
         return load_description(DEFAULT_ROBOT)
-    path = Path(str(rec.get("path", "")))
-    if path.is_file() and path.read_text() == rec.get("text"):
-        return load_description(str(path))
-    name = str(rec.get("name", ""))
-    shipped = ROBOTS_DIR / f"{name}.toml"
-    if shipped.is_file() and shipped.read_text() == rec.get("text"):
-        return load_description(name)
-    raise InputError(
-        f"the session's robot {name!r} was described by {path}, which is gone or changed; "
-        "give --robot NAME|FILE"
-    )
-
-
-# --------------------------------------------------------------------------- parsing
+    return _from_text(rec["text"], Path(str(rec.get("path", "recorded.toml"))))
 
 
 class _Fields:

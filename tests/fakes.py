@@ -1,11 +1,12 @@
 """Fakes of the loop's ports, for testing the loop's own logic without PyBullet or a camera.
 
-`FakePlant` is a kinematic robot (it reaches each commanded state exactly, or with a
-first-order lag) with a two-segment task: the pick segment ends when the palm has been
-within `tolerance_m` of the pick goal for `hold_ticks` ticks, then the place goal is active
-and the task succeeds when the palm reaches it. `ScriptedHand` is the operator's hand from a
-path in the robot base frame, sampled like a 30 Hz camera, with the same re-anchoring
-semantics as the workspace mapping (a returning hand maps to where the loop asks).
+`FakeRobot` is a kinematic robot (it reaches each commanded state exactly, or with a
+first-order lag); `FakeTask` a two-segment task judging its measured state: the pick segment
+ends when the palm has been within `tolerance_m` of the pick goal for `hold_ticks` ticks, then
+the place goal is active and the task succeeds when the palm reaches it. `fake_world` builds
+the pair. `ScriptedHand` is the operator's hand from a path in the robot base frame, sampled
+like a 30 Hz camera, with the same re-anchoring semantics as the workspace mapping (a
+returning hand maps to where the loop asks). None of them imports PyBullet.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from dsteleop.app.ports import NO_HAND, HumanInput, PlantStep
+from dsteleop.app.ports import NO_HAND, HumanInput, RobotLimits, RobotState, TaskStep
 from dsteleop.arbitration import HandState, so3_exp
 from dsteleop.robot.scene import SceneGeometry
 from dsteleop.robot.task import EventKind, Outcome, Phase, TaskEvent
@@ -28,75 +29,132 @@ DT = 1.0 / 30.0
 
 
 def state(
-    p: tuple[float, float, float], rv: tuple[float, float, float] = (0.0, 0.0, 0.0), g: float = 1.0
+    p: tuple[float, float, float],
+    rv: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    g: float = 1.0,
+    n_fingers: int = 4,
 ) -> HandState:
     return HandState(
-        np.array(p, dtype=np.float64), so3_exp(np.array(rv, dtype=np.float64)), np.full(4, g)
+        np.array(p, dtype=np.float64),
+        so3_exp(np.array(rv, dtype=np.float64)),
+        np.full(n_fingers, g),
     )
 
 
-class FakePlant:
-    """A kinematic robot and a pick-then-place task (module docstring).
+class FakeRobot:
+    """A kinematic robot (module docstring).
 
     Args:
         start: the robot's state at every reset.
-        pick, place: the goals the robot knows.
-        tolerance_m: how close counts as at a goal [m].
-        hold_ticks: ticks at the pick goal before the place segment starts.
         lag: 0 reaches each command exactly; otherwise X moves this fraction of the way.
+        fingers: its openness dimensions (default the four-finger hand's).
+        silent_after: stop reporting new states after this many commands (a lost robot).
     """
-
-    finger_names: tuple[str, ...] = FINGERS
 
     def __init__(
         self,
         start: HandState | None = None,
+        lag: float = 0.0,
+        fingers: tuple[str, ...] = FINGERS,
+        silent_after: int | None = None,
+    ) -> None:
+        self.finger_names = fingers
+        self.start = start or state((0.5, 0.3, 0.4), n_fingers=len(fingers))
+        self.lag = lag
+        self.silent_after = silent_after
+        self.name = "fake"
+        self.joint_names: tuple[str, ...] = ()
+        self.limits = RobotLimits((0.0, -1.0, 0.0), (1.0, 1.0, 1.0), 0.25, 1.0, 4.0)
+        self.resets = 0
+        self.commands: list[HandState] = []
+        self.seqs: list[int] = []
+        self.X = self.start
+        self._stamp_s = 0.0
+
+    def reset(self, now_s: float) -> RobotState:
+        self.X = self.start
+        self.resets += 1
+        self._stamp_s = now_s
+        return RobotState(self.X, np.zeros(0), now_s)
+
+    def apply(self, X_cmd: HandState, seq: int, now_s: float) -> None:
+        self.commands.append(X_cmd)
+        self.seqs.append(seq)
+        if self.silent_after is not None and len(self.commands) > self.silent_after:
+            return
+        if self.lag:
+            a = 1.0 - self.lag
+            self.X = HandState(
+                self.X.position + a * (X_cmd.position - self.X.position),
+                X_cmd.rotation,
+                X_cmd.openness,
+            )
+        else:
+            self.X = X_cmd
+        self._stamp_s = now_s
+
+    def state(self, now_s: float) -> RobotState | None:
+        return RobotState(self.X, np.zeros(0), self._stamp_s)
+
+    def describe(self) -> dict[str, Any]:
+        return {"kind": "fake", "name": self.name}
+
+    def scene(self) -> SceneGeometry | None:
+        return None
+
+    def close(self) -> None:
+        pass
+
+
+class FakeTask:
+    """A pick-then-place task on a kinematic robot (module docstring).
+
+    Args:
+        pick, place: the goals the robot knows.
+        tolerance_m: how close counts as at a goal [m].
+        hold_ticks: ticks at the pick goal before the place segment starts.
+        n_fingers: the robot's openness dimensions.
+    """
+
+    def __init__(
+        self,
         pick: HandState | None = None,
         place: HandState | None = None,
         tolerance_m: float = 0.01,
         hold_ticks: int = 3,
-        lag: float = 0.0,
+        n_fingers: int = 4,
     ) -> None:
-        self.start = start or state((0.5, 0.3, 0.4))
-        self.pick = pick or state((0.5, 0.1, 0.2), g=0.0)
-        self.place = place or state((0.5, -0.2, 0.4), g=1.0)
+        self.pick = pick or state((0.5, 0.1, 0.2), g=0.0, n_fingers=n_fingers)
+        self.place = place or state((0.5, -0.2, 0.4), g=1.0, n_fingers=n_fingers)
         self.tolerance_m = tolerance_m
         self.hold_ticks = hold_ticks
-        self.lag = lag
         self.resets = 0
-        self.commands: list[HandState] = []
+        self.updates = 0
         self.reset()
 
-    def reset(self, utensil: str | None = None) -> HandState:
-        self.X = self.start
+    def reset(self, utensil: str | None = None) -> None:
         self.phase = Phase.PICK
         self.outcome: Outcome | None = None
         self._held = 0
         self.t_s = 0.0
         self.resets += 1
-        return self.X
 
     def goal(self) -> HandState | None:
         if self.phase is Phase.DONE:
             return None
         return self.pick if self.phase is Phase.PICK else self.place
 
-    def apply(self, X_next: HandState) -> PlantStep:
-        self.commands.append(X_next)
-        if self.lag:
-            a = 1.0 - self.lag
-            self.X = HandState(
-                self.X.position + a * (X_next.position - self.X.position),
-                X_next.rotation,
-                X_next.openness,
-            )
-        else:
-            self.X = X_next
+    def true_goals(self) -> tuple[HandState, HandState]:
+        return self.pick, self.place
+
+    def update(self, robot: RobotState) -> TaskStep:
+        self.updates += 1
         self.t_s += DT
         events: list[TaskEvent] = []
         goal = self.goal()
+        X = robot.X
         if goal is not None:
-            near = float(np.linalg.norm(self.X.position - goal.position)) < self.tolerance_m
+            near = float(np.linalg.norm(X.position - goal.position)) < self.tolerance_m
             if self.phase is Phase.PICK:
                 self._held = self._held + 1 if near else 0
                 if self._held >= self.hold_ticks:
@@ -109,7 +167,7 @@ class FakePlant:
                 self.phase = Phase.DONE
                 self.outcome = Outcome(True, "in_bin", self.t_s, "thing")
                 events.append(TaskEvent(EventKind.SUCCESS, self.t_s, "in_bin"))
-        return PlantStep(self.X, self.phase, tuple(events), self.outcome)
+        return TaskStep(self.phase, tuple(events), self.outcome)
 
     def set_goal_noise(self, sigma_m: float) -> None:
         pass
@@ -122,6 +180,19 @@ class FakePlant:
 
     def close(self) -> None:
         pass
+
+
+def fake_world(
+    start: HandState | None = None,
+    pick: HandState | None = None,
+    place: HandState | None = None,
+    lag: float = 0.0,
+    fingers: tuple[str, ...] = FINGERS,
+    **task: Any,
+) -> tuple[FakeRobot, FakeTask]:
+    """A `FakeRobot` and a `FakeTask` (their arguments)."""
+    robot = FakeRobot(start, lag, fingers)
+    return robot, FakeTask(pick, place, n_fingers=len(fingers), **task)
 
 
 Path = Callable[[float], HandState | None]

@@ -27,7 +27,7 @@ from dsteleop.arbitration import (
 )
 from dsteleop.robot.task import Phase
 
-from .fakes import DT, FakePlant, ScriptedHand, state
+from .fakes import DT, ScriptedHand, fake_world, state
 
 
 def planar(x: float, y: float, heading: float) -> HandState:
@@ -119,9 +119,9 @@ def test_2_a_slow_heading_wander_is_not_a_unit_direction() -> None:
 
 
 def test_3_in_ds_the_place_segment_starts_with_b_one() -> None:
-    plant = FakePlant(start=state((0.5, 0.3, 0.4)))
+    world = fake_world(start=state((0.5, 0.3, 0.4)))
     hand = ScriptedHand(lambda t: state((0.5, 0.3 - 0.05 * t, 0.4 - 0.05 * t)))
-    loop = TeleopLoop(LoopConfig(mode=Mode.DS), hand, plant, ManualClock(0.0))
+    loop = TeleopLoop(LoopConfig(mode=Mode.DS), hand, *world, ManualClock(0.0))
     place = None
     for k in range(1800):
         loop.clock.sleep_until(k * DT)

@@ -1,8 +1,8 @@
 """The loop's own logic against fakes of its ports: no PyBullet, no camera, no tracking.
 
-The hand is a scripted path in the robot base frame (`fakes.ScriptedHand`) and the robot a
-kinematic fake with a two-segment task (`fakes.FakePlant`), on a manual clock, so every test
-is exact and fast: staleness and the halt ramp, re-anchoring, the assist policy, the input
+The hand is a scripted path in the robot base frame (`fakes.ScriptedHand`), the robot a
+kinematic fake and the task a two-segment fake (`fakes.fake_world`), on a manual clock, so every
+test is exact and fast: staleness and the halt ramp, re-anchoring, the assist policy, the input
 delay, the one-slot observers, mode and parameter changes, recording, the operator history.
 `test_loop_kitchen.py` runs the same loop on the PyBullet robot and the real tracking.
 """
@@ -29,7 +29,7 @@ from dsteleop.app.session.writer import HISTORY_FILE, HistoryFile
 from dsteleop.arbitration import HandState, Mode, OperatorHistory
 from dsteleop.robot.task import Phase
 
-from .fakes import DT, FakePlant, ScriptedHand, state
+from .fakes import DT, FakeRobot, ScriptedHand, fake_world, state
 
 START = state((0.5, 0.3, 0.4))
 
@@ -53,7 +53,7 @@ def make_loop(
 ) -> TeleopLoop:
     hand = kw.pop("hand", None) or ScriptedHand(path, input_delay_s=kw.get("input_delay_s", 0.0))
     cfg = LoopConfig(mode=mode, lost_policy=policy, **kw)
-    return TeleopLoop(cfg, hand, FakePlant(start=START), clock=ManualClock(0.0))
+    return TeleopLoop(cfg, hand, *fake_world(start=START), clock=ManualClock(0.0))
 
 
 def run(loop: TeleopLoop, seconds: float, t0: float = 0.0) -> list[TickRecord]:
@@ -114,12 +114,11 @@ def test_mode_and_parameter_changes_take_effect_at_the_next_tick_and_are_noted()
 
 def test_a_segment_end_adds_an_attempt_and_restarts_the_start_states(tmp_path: Path) -> None:
     # The hand goes to the pick goal (the autonomous robot too), then stays.
-    plant = FakePlant(start=START)
     hand = ScriptedHand(lambda t: START)
     loop = TeleopLoop(
         LoopConfig(mode=Mode.AUTONOMOUS),
         hand,
-        plant,
+        *fake_world(start=START),
         clock=ManualClock(0.0),
         history_file=HistoryFile(tmp_path / HISTORY_FILE),
     )
@@ -226,7 +225,7 @@ def test_assist_policy_keeps_going_towards_the_goal_at_reduced_speed() -> None:
     records = run(loop, 3.0)
     assisting = [r for r in records if r.t_s > 0.6]
     assert all(r.status is Status.ASSIST for r in assisting)
-    goal = loop.plant.goal()
+    goal = loop.task.goal()
     assert goal is not None
     d = [float(np.linalg.norm(r.X_current.position - goal.position)) for r in assisting]
     assert d[-1] < d[0] - 0.05
@@ -280,9 +279,12 @@ def test_observers_get_every_record_in_order() -> None:
         def observe(self, record: TickRecord) -> None:
             seen.append(record.k)
 
-    plant = FakePlant(start=START)
     loop = TeleopLoop(
-        LoopConfig(), ScriptedHand(lambda t: START), plant, ManualClock(0.0), observers=(Eyes(),)
+        LoopConfig(),
+        ScriptedHand(lambda t: START),
+        *fake_world(start=START),
+        ManualClock(0.0),
+        observers=(Eyes(),),
     )
     run(loop, 1.0)
     assert seen == list(range(30))
@@ -294,11 +296,11 @@ def test_observers_get_every_record_in_order() -> None:
 def test_a_recording_starts_with_the_task_and_closes_complete(tmp_path: Path) -> None:
     loop = make_loop(moving((0.0, -0.05, 0.0)), Mode.DS)
     run(loop, 0.5)
-    assert isinstance(loop.plant, FakePlant)
-    resets = loop.plant.resets
+    assert isinstance(loop.robot, FakeRobot)
+    resets = loop.robot.resets
     folder = tmp_path / "s"
     loop.start_recording(folder, {"command": "test"})  # the loop has ticked: the task resets
-    assert loop.tick_index == 0 and loop.plant.resets == resets + 1
+    assert loop.tick_index == 0 and loop.robot.resets == resets + 1
     run(loop, 1.0, t0=0.5)
     loop.close()
     s = read_session(folder)
@@ -312,9 +314,12 @@ def test_a_recording_starts_with_the_task_and_closes_complete(tmp_path: Path) ->
 def test_a_recording_requested_through_the_controls_goes_under_the_record_root(
     tmp_path: Path,
 ) -> None:
-    plant = FakePlant(start=START)
     loop = TeleopLoop(
-        LoopConfig(), ScriptedHand(lambda t: START), plant, ManualClock(0.0), record_root=tmp_path
+        LoopConfig(),
+        ScriptedHand(lambda t: START),
+        *fake_world(start=START),
+        ManualClock(0.0),
+        record_root=tmp_path,
     )
     loop.controls.set_recording(True)
     run(loop, 0.3)
@@ -393,7 +398,7 @@ def _lowered_threads_after_a_real_time_run() -> tuple[int, int, int]:
     while not ids:
         pass
     loop = TeleopLoop(LoopConfig(mode=Mode.MANUAL), ScriptedHand(lambda t: START),
-                      FakePlant(start=START), clock=MonotonicClock())  # fmt: skip
+                      *fake_world(start=START), clock=MonotonicClock())  # fmt: skip
     loop.run(max_ticks=2)
     after_one = os.getpriority(os.PRIO_PROCESS, ids[0])
     loop.run(max_ticks=2)

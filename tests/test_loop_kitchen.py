@@ -15,15 +15,15 @@ from numpy.typing import NDArray
 
 from dsteleop.app.cli.compose import build
 from dsteleop.app.cli.options import LoopOptions
-from dsteleop.app.inputs.demo import DemoCamera, human_openness
+from dsteleop.app.inputs.demo import DemoCamera
 from dsteleop.app.inputs.tracked import TrackedHandInput
 from dsteleop.app.loop import LoopConfig, TeleopLoop
 from dsteleop.app.loop.timing import ManualClock
-from dsteleop.app.plants.kitchen import KitchenPlant
+from dsteleop.app.plants.kitchen import simulated_kitchen
 from dsteleop.app.session.schema import Status, TickRecord
 from dsteleop.arbitration import HandState, Mode
 from dsteleop.robot.task import Phase
-from dsteleop.tracking.mapping import WorkspaceMapping
+from dsteleop.tracking.mapping import WorkspaceMapping, human_openness
 from dsteleop.tracking.pipeline import HandTracker
 from dsteleop.tracking.synthetic import SyntheticSource
 
@@ -40,8 +40,9 @@ def scripted_loop(
 ) -> TeleopLoop:
     """A loop whose operator's hand (robot frame, from the start state) follows `path`,
     seen by the virtual camera and tracked like a real one."""
-    plant = KitchenPlant("spoon", seed=0)
-    start = plant.reset()
+    robot, task = simulated_kitchen(utensil="spoon", seed=0)
+    task.reset()
+    start = robot.reset(0.0).X
     camera = DemoCamera(start)
 
     def trajectory(t: float) -> tuple[HandState, NDArray[np.float64]] | None:
@@ -55,7 +56,7 @@ def scripted_loop(
     hand = TrackedHandInput.from_source(
         SyntheticSource(trajectory, fps=30.0), HandTracker(), WorkspaceMapping(), 0.0
     )
-    return TeleopLoop(LoopConfig(mode=mode), hand, plant, clock=ManualClock(0.0))
+    return TeleopLoop(LoopConfig(mode=mode), hand, robot, task, clock=ManualClock(0.0))
 
 
 def run_ticks(loop: TeleopLoop, seconds: float) -> list[TickRecord]:

@@ -210,16 +210,16 @@ def test_rerun_is_not_imported_by_the_core_packages(package: str) -> None:
 def test_the_scene_and_the_goals_log_without_a_dropped_component(tmp_path: Path) -> None:
     """Every shape of the kitchen scene (boxes, spheres, capsules, meshes) and the true
     goals, in strict mode: Rerun raises on anything it would drop."""
-    from dsteleop.app.plants.kitchen import KitchenPlant
+    from dsteleop.app.plants.kitchen import KitchenTask
     from dsteleop.app.rrd import log as rlog
     from dsteleop.app.rrd.files import file_recording
 
-    plant = KitchenPlant("spoon", seed=0, export_scene=True)
+    task = KitchenTask(utensil="spoon", seed=0, export_scene=True)
     try:
-        plant.reset()
-        scene, meta = plant.scene(), plant.describe()
+        task.reset()
+        scene, meta = task.scene(), task.describe()
     finally:
-        plant.close()
+        task.close()
     assert scene is not None
     rec = file_recording(tmp_path / "scene.rrd", "scene")
     rlog.log_scene_geometry(rec, "DS", scene)

@@ -104,10 +104,10 @@ def test_the_world_advances_one_loop_period_per_tick() -> None:
         built = build(LoopOptions.of("demo", LoopConfig(rate_hz=rate)), realtime=False)
         try:
             built.loop.run_headless(max_ticks=12)
-            env = built.loop.plant.env  # type: ignore[attr-defined]
+            env = built.loop.task.env  # type: ignore[attr-defined]
             assert env.dt_s == pytest.approx(1.0 / rate)
             assert env.robot.state().t_s == pytest.approx(12 / rate)
-            assert built.loop.plant.describe()["control_dt_s"] == pytest.approx(1.0 / rate)
+            assert built.loop.task.describe()["control_dt_s"] == pytest.approx(1.0 / rate)
         finally:
             built.close()
 
@@ -147,10 +147,12 @@ def test_a_sustained_overrun_share_is_measured_and_reported() -> None:
 
 def test_the_page_status_shows_the_overrun_share() -> None:
     from dsteleop.app.viewer.panel import status_html
-    from tests.fakes import FakePlant, ScriptedHand
+    from tests.fakes import ScriptedHand, fake_world
 
-    plant = FakePlant()
-    loop = TeleopLoop(LoopConfig(), ScriptedHand(lambda t: plant.start), plant, ManualClock(0.0))
+    robot, task = fake_world()
+    loop = TeleopLoop(
+        LoopConfig(), ScriptedHand(lambda t: robot.start), robot, task, ManualClock(0.0)
+    )
     record = loop.tick(0.0)
     assert "overrun_share" in record.timing
     timing = {**record.timing, "overrun_share": 0.35}
@@ -392,13 +394,14 @@ def test_recording_start_without_record_writes_to_the_user_data_folder(
 
 def test_the_loop_lists_every_recording_it_made(tmp_path: Path) -> None:
     """serve's summary names the page's recordings, also once they were stopped."""
-    from tests.fakes import FakePlant, ScriptedHand
+    from tests.fakes import ScriptedHand, fake_world
 
-    plant = FakePlant()
+    robot, task = fake_world()
     loop = TeleopLoop(
         LoopConfig(mode=Mode.DS),
-        ScriptedHand(lambda t: plant.start),
-        plant,
+        ScriptedHand(lambda t: robot.start),
+        robot,
+        task,
         ManualClock(0.0),
         record_root=tmp_path,
     )

@@ -70,7 +70,7 @@ def demo_run() -> DemoRun:
     out: list[TickRecord] = []
     sub = loop.broadcaster.subscribe()
     try:
-        geometry = loop.plant.scene()
+        geometry = loop.task.scene()
         assert geometry is not None
         for _ in range(150):
             record = loop.tick(loop.clock.now())
@@ -456,16 +456,16 @@ def _rgb(rgba: tuple[float, ...]) -> tuple[int, int, int]:
 
 
 def test_scene_view_draws_every_visual_of_the_kitchen() -> None:
-    from dsteleop.app.plants.kitchen import KitchenPlant
+    from dsteleop.app.plants.kitchen import KitchenTask
     from dsteleop.app.viewer.scene import SceneView
 
-    plant = KitchenPlant(export_scene=True)
+    task = KitchenTask(export_scene=True)
     try:
-        plant.reset()
-        geo = plant.scene()
-        poses = plant.env.poses()
+        task.reset()
+        geo = task.scene()
+        poses = task.env.poses()
     finally:
-        plant.close()
+        task.close()
     frames = geo.frames
     assert len(geo.static) == len(frames) and {v.frame for v in geo.visuals} <= set(frames)
     meshes = [v for v in geo.visuals if v.kind == "mesh"]
@@ -593,7 +593,7 @@ def test_viewer_follows_a_live_loop_and_never_posts_on_its_own() -> None:
 
     built = _demo_loop()
     loop = built.loop
-    viewer = Viewer(loop.broadcaster, loop.controls, loop.plant.scene(), ViewerConfig(port=0))
+    viewer = Viewer(loop.broadcaster, loop.controls, loop.task.scene(), ViewerConfig(port=0))
     try:
         viewer.start()
         assert viewer.url == f"http://127.0.0.1:{viewer.port}/" and viewer.port > 0
@@ -796,7 +796,7 @@ def test_a_stalled_tab_never_slows_the_loop() -> None:
     from dsteleop.app.viewer.server import Viewer, ViewerConfig
 
     loop = _demo_loop(realtime=True).loop
-    viewer = Viewer(loop.broadcaster, loop.controls, loop.plant.scene(), ViewerConfig(port=0))
+    viewer = Viewer(loop.broadcaster, loop.controls, loop.task.scene(), ViewerConfig(port=0))
     viewer.start()
     stalled = [_stalled_client(viewer.port) for _ in range(2)]
     sub = loop.broadcaster.subscribe()

@@ -22,8 +22,11 @@ Mapping, relative to an anchor (hand pose h0 in the camera frame, robot pose r0)
 with s the per-axis scale (robot metres per hand metre, in base axes). The hand's rotation
 since the anchor, expressed in the base frame, is applied to the robot's anchor orientation,
 so turning the hand about the camera's vertical axis yaws the robot about its z.
-Fingers: the robot's thumb, index, middle come from the same human fingers, the robot's ring
-from the mean of the human ring and little fingers (`ROBOT_FINGERS`).
+Fingers: each robot finger's openness is the mean of the human fingers its robot description
+names (`MappingConfig.robot_fingers`). The default is the iiwa's hand (`ROBOT_FINGERS`): the
+robot's thumb, index, middle come from the same human fingers, its ring from the mean of the
+human ring and little fingers. A gripper of one openness (the Panda) takes the pinch, the mean
+of thumb and index (docs/robots.md).
 
 `calibrate(sample)` re-centres: the current hand pose becomes the anchor and the robot pose
 it maps to *now* stays where it is (no jump); the first mapping (or `calibrate(sample,
@@ -52,14 +55,37 @@ ROBOT_FINGERS: dict[str, tuple[str, ...]] = {
     "middle": ("middle",),
     "ring": ("ring", "little"),
 }
-_FINGER_MIX = np.array(
-    [[1.0 / len(src) if h in src else 0.0 for h in FINGER_NAMES] for src in ROBOT_FINGERS.values()]
-)
+#: A robot's fingers and the human fingers each follows, in the robot's finger order.
+RobotFingers = tuple[tuple[str, tuple[str, ...]], ...]
+DEFAULT_ROBOT_FINGERS: RobotFingers = tuple(ROBOT_FINGERS.items())
 
 
-def robot_openness(openness: Array) -> Array:
-    """Human openness (..., 5) thumb..little -> robot (..., 4) thumb, index, middle, ring."""
-    return np.asarray(openness, dtype=np.float64) @ _FINGER_MIX.T
+def finger_mix(robot_fingers: RobotFingers = DEFAULT_ROBOT_FINGERS) -> Array:
+    """(F, 5) weights: row f averages the human fingers robot finger f follows."""
+    return np.array(
+        [[1.0 / len(src) if h in src else 0.0 for h in FINGER_NAMES] for _, src in robot_fingers]
+    )
+
+
+_FINGER_MIX = finger_mix()
+
+
+def robot_openness(openness: Array, mix: Array = _FINGER_MIX) -> Array:
+    """Human openness (..., 5) thumb..little -> robot (..., F) by `mix` (`finger_mix`;
+    default the iiwa hand's thumb, index, middle, ring)."""
+    return np.asarray(openness, dtype=np.float64) @ mix.T
+
+
+def human_openness(robot_openness: Array, mix: Array = _FINGER_MIX) -> Array:
+    """A human hand (5,) thumb..little that `robot_openness` (F,) maps back from: each human
+    finger takes the mean of the robot fingers that follow it, one no robot finger follows
+    the mean of all (the iiwa hand: the little finger follows the ring; a gripper: all five
+    fingers as open as the gripper). `robot_openness(human_openness(g, mix), mix) == g`."""
+    g = np.asarray(robot_openness, dtype=np.float64)
+    used = mix > 0.0  # (F, 5)
+    counts = used.sum(0)
+    per_human = (used * g[:, None]).sum(0) / np.maximum(counts, 1)
+    return np.asarray(np.where(counts > 0, per_human, g.mean()), dtype=np.float64)
 
 
 def _vec3(name: str, value: tuple[float, float, float]) -> Array:
@@ -82,6 +108,8 @@ class MappingConfig:
             they look (False).
         workspace_min_m: lower corner of the reachable box [m], base frame.
         workspace_max_m: upper corner [m].
+        robot_fingers: the robot's fingers in order, each with the human fingers whose
+            mean openness it follows (from the robot's description; default the iiwa hand).
     """
 
     neutral_position_m: tuple[float, float, float] = (0.45, 0.0, 0.30)
@@ -90,8 +118,16 @@ class MappingConfig:
     mirror: bool = True
     workspace_min_m: tuple[float, float, float] = (0.15, -0.45, 0.02)
     workspace_max_m: tuple[float, float, float] = (0.80, 0.45, 0.70)
+    robot_fingers: RobotFingers = DEFAULT_ROBOT_FINGERS
 
     def __post_init__(self) -> None:
+        # read back from JSON as nested lists: the same table as tuples
+        fingers = tuple((str(f), tuple(str(h) for h in src)) for f, src in self.robot_fingers)
+        object.__setattr__(self, "robot_fingers", fingers)
+        for f, src in fingers:
+            bad = [h for h in src if h not in FINGER_NAMES]
+            if not src or bad:
+                raise ValueError(f"robot finger {f!r} must follow human fingers of {FINGER_NAMES}")
         lo = _vec3("workspace_min_m", self.workspace_min_m)
         hi = _vec3("workspace_max_m", self.workspace_max_m)
         if not (lo < hi).all():
@@ -120,6 +156,8 @@ class WorkspaceMapping:
 
     def __init__(self, config: MappingConfig | None = None) -> None:
         self.config = config or MappingConfig()
+        self.mix = finger_mix(self.config.robot_fingers)
+        """(F, 5) human -> robot finger weights of this mapping (`finger_mix`)."""
         self._anchor_cam: tuple[Array, Array] | None = None
         self._anchor_robot: tuple[Array, Array] | None = None
 
@@ -156,7 +194,7 @@ class WorkspaceMapping:
         self._anchor_robot = robot
 
     def map(self, sample: HandSample) -> HandState:
-        """The hand as a `HandState` in the robot base frame, 4 robot fingers.
+        """The hand as a `HandState` in the robot base frame, with the robot's fingers.
 
         The first call anchors the current hand on the neutral robot pose.
 
@@ -176,7 +214,7 @@ class WorkspaceMapping:
             np.array(c.workspace_max_m),
         )
         R = Rbc @ R_cam @ R_h0.T @ Rbc.T @ R_r0
-        return HandState(p, R, robot_openness(sample.openness))
+        return HandState(p, R, robot_openness(sample.openness, self.mix))
 
     def to_camera(self, state: HandState) -> tuple[Array, Array]:
         """Inverse of `map` for the pose (ignoring the workspace clip): the camera-frame palm

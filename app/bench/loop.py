@@ -31,7 +31,7 @@ from dsteleop.app.bench import data_dir
 from dsteleop.app.inputs.tracked import TrackedHandInput
 from dsteleop.app.loop import LoopConfig, TeleopLoop
 from dsteleop.app.loop.timing import raise_priority
-from dsteleop.app.plants.kitchen import KitchenPlant
+from dsteleop.app.plants.kitchen import simulated_kitchen
 from dsteleop.app.rrd.target import RerunTarget
 from dsteleop.app.session.video import FrameRecorder
 from dsteleop.arbitration import Mode
@@ -86,7 +86,7 @@ def _one(
         if built.rerun is not None:
             result["rerun"] = _rerun_stats(built.rerun, rerun)
         return result
-    plant = KitchenPlant("spoon", seed=0, export_scene=rerun is not None)
+    robot, task = simulated_kitchen(utensil="spoon", seed=0, export_scene=rerun is not None)
     source: FrameSource = VideoFileSource(video, realtime=True, loop=True)
     frames = FrameRecorder(source) if record else None
     stream = TrackingStream(frames or source, HandTracker())
@@ -95,12 +95,13 @@ def _one(
     if rerun is not None:
         from dsteleop.app.rrd.live import RerunLogger
 
-        plant.reset()  # the scene and the goals exist once the task is set up
-        logger = RerunLogger(rerun, "bench", plant.scene(), plant.describe())
+        task.reset()  # the scene and the goals exist once the task is set up
+        logger = RerunLogger(rerun, "bench", task.scene(), task.describe())
     loop = TeleopLoop(
         LoopConfig(mode=Mode.DS),
         hand,
-        plant,
+        robot,
+        task,
         frame_recorder=frames,
         observers=() if logger is None else (logger,),
     )

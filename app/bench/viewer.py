@@ -138,7 +138,7 @@ def run_config(
     viewer = Viewer(
         loop.broadcaster,
         loop.controls,
-        scene=loop.plant.scene(),
+        scene=loop.task.scene(),
         config=ViewerConfig(port=0, scene_hz=scene_hz),
         arbitration=loop.config.arbitration,
         source="demo",

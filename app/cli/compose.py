@@ -29,8 +29,8 @@ from dsteleop.app.inputs.demo import DemoCamera, DemoConfig, DemoOperator, demo_
 from dsteleop.app.inputs.tracked import TrackedHandInput
 from dsteleop.app.loop import TeleopLoop
 from dsteleop.app.loop.timing import ManualClock, MonotonicClock
-from dsteleop.app.plants.kitchen import KitchenPlant
-from dsteleop.app.ports import Observer
+from dsteleop.app.plants.kitchen import simulated_kitchen
+from dsteleop.app.ports import Observer, Robot, Task
 from dsteleop.app.session.video import FrameRecorder
 from dsteleop.app.session.writer import HistoryFile
 from dsteleop.tracking.mapping import MappingConfig, WorkspaceMapping
@@ -94,7 +94,7 @@ def build(
     observers: tuple[Observer, ...] = (),
     mapping: MappingConfig | None = None,
 ) -> Built:
-    """Build the plant, the hand input and the loop (module docstring).
+    """Build the robot and the task, the hand input and the loop (module docstring).
 
     Args:
         options: the loop options of the command.
@@ -105,7 +105,13 @@ def build(
         mapping: camera -> robot mapping (default `MappingConfig()`).
     """
     spec = resolve_source(options.source)
-    mapping = mapping or MappingConfig()
+    from dsteleop.robot.description import load_description
+
+    desc = load_description(options.robot)
+    # The hand's fingers drive the robot's: the table comes with the robot's description.
+    mapping = dataclasses.replace(
+        mapping or MappingConfig(), robot_fingers=tuple((f.name, f.human) for f in desc.fingers)
+    )
     # The demo person works in the operator's world (docs/operator.md): the task's goal noise
     # and the link's command delay come from it, unless given on the command line.
     demo_config = DemoConfig(seed=options.seed)
@@ -118,17 +124,21 @@ def build(
             options = dataclasses.replace(
                 options, loop=dataclasses.replace(options.loop, input_delay_s=world.delay_s)
             )
-    plant = KitchenPlant(
-        options.utensil,
-        options.seed,
-        goal_noise_m,
+    robot: Robot
+    task: Task
+    robot, task = simulated_kitchen(
+        desc,
+        utensil=options.utensil,
+        seed=options.seed,
+        goal_noise_m=goal_noise_m,
         export_scene=export_scene or options.rerun is not None,
         time_limit_s=options.time_limit_s,
         control_dt_s=options.loop.dt_s,  # the world keeps the loop's time
     )
     rerun: Any = None
     try:
-        start = plant.reset()
+        task.reset()
+        start = robot.reset(0.0).X
         demo: DemoOperator | None = None
         frames: FrameRecorder | None = None
         video: VideoFileSource | None = None
@@ -136,7 +146,7 @@ def build(
             if options.record_video:
                 log.warning("--record-video: the demo has no camera frames; no video is recorded")
             demo = DemoOperator(
-                plant.true_goals,
+                task.true_goals,
                 start,
                 demo_config,
                 arbitration=options.loop.arbitration,
@@ -172,14 +182,15 @@ def build(
             rerun = RerunLogger(
                 options.rerun,
                 name or time.strftime("live-%Y%m%d-%H%M%S"),
-                scene=plant.scene(),
-                plant_meta=plant.describe(),
+                scene=task.scene(),
+                plant_meta=task.describe(),
             )
             observers = (*observers, rerun)
         loop = TeleopLoop(
             options.loop,
             hand,
-            plant,
+            robot,
+            task,
             clock=MonotonicClock() if realtime else ManualClock(0.0),
             observers=(*((demo,) if demo is not None else ()), *observers),
             history_file=history,
@@ -188,7 +199,8 @@ def build(
             meta=meta,
         )
     except BaseException:
-        plant.close()
+        robot.close()
+        task.close()
         if rerun is not None:
             rerun.close()
         raise

@@ -184,6 +184,13 @@ def add_loop_options(
         help=f"the arbitration mode: {', '.join(m.value for m in registered())} (default DS)",
     )
     parser.add_argument(
+        "--robot",
+        default="iiwa",
+        metavar="NAME|FILE",
+        help="the robot: a shipped description (iiwa, panda) or a robot description file "
+        "(.toml, docs/robots.md); default iiwa",
+    )
+    parser.add_argument(
         "--utensil", default="spoon", help="utensil to pick (spoon, spatula, ladle)"
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of goal noise and demo operator")
@@ -277,6 +284,7 @@ class LoopOptions:
         source: the hand source.
         loop: the loop configuration (mode, rate, lost policy, arbitration, ...).
         utensil: the utensil to pick.
+        robot: the robot (`--robot`): a shipped description's name or a description file.
         seed: seed of the goal noise and the demo operator.
         goal_noise_m: goal position noise [m] (None: the task's default).
         record: the session folder (run) or root (serve), or None.
@@ -296,6 +304,7 @@ class LoopOptions:
     source: SourceSpec
     loop: LoopConfig
     utensil: str = "spoon"
+    robot: str = "iiwa"
     seed: int = 0
     goal_noise_m: float | None = None
     record: Path | None = None
@@ -347,10 +356,12 @@ def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOp
             "no pixels); record a webcam or a video source, or leave --record-video out"
         )
     history = check_history_path(args.history)
+    check_robot(args.robot)
     return LoopOptions(
         source=source,
         loop=loop,
         utensil=args.utensil,
+        robot=args.robot,
         seed=args.seed,
         goal_noise_m=args.goal_noise,
         record=args.record,
@@ -367,6 +378,19 @@ def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOp
         history=history,
         input_delay_given=args.input_delay is not None or "input_delay_s" in loop_file,
     )
+
+
+def check_robot(robot: str) -> None:
+    """`--robot NAME|FILE` names a valid robot description (read and checked against its
+    URDF now, before anything runs or records).
+
+    Raises:
+        InputError: an unknown name, a missing or malformed file, a link or joint its URDF
+            does not have (one line).
+    """
+    from dsteleop.robot.description import load_description
+
+    load_description(robot)
 
 
 def check_loop_bounds(

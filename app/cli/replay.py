@@ -12,6 +12,8 @@ correct what that robot does; `metrics.json`, the JSON line and the plots say so
     --robot recorded     the robot the session recorded, open loop: the recorded mode gives
                          back the recorded arbitration exactly; another mode, what it would
                          have computed along the same robot path
+    --robot NAME|FILE    simulated, on that robot description instead of the session's
+                         (its fingers must match the recorded hand's; a video: any robot)
     --as-recorded        the sessions' own ticks, as they happened (each in its recorded
                          mode: not with --modes)
     --retrack            re-run tracking on each session's video first
@@ -33,7 +35,7 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 from dsteleop.app.cli.options import add_config_options, add_video_options, arbitration_config
 from dsteleop.app.cli.progress import Progress, prepare_out_dir
@@ -54,7 +56,8 @@ class ReplayCommand:
         inputs: session folders and video files, in order.
         modes: the modes to replay in.
         out: the output folder.
-        robot: replay against a "simulated" or the "recorded" robot.
+        robot: replay against a "simulated" (the session's), the "recorded" robot, or a
+            simulated robot of a description (name or file).
         as_recorded: metrics of the sessions as they happened instead.
         retrack: re-track each session's video.
         workers: processes.
@@ -68,7 +71,7 @@ class ReplayCommand:
     inputs: tuple[Path, ...]
     modes: tuple[Mode, ...]
     out: Path
-    robot: Literal["simulated", "recorded"]
+    robot: str
     as_recorded: bool
     retrack: bool
     workers: int
@@ -77,6 +80,15 @@ class ReplayCommand:
     rotate: int | None = None
     allow_partial: bool = False
     rerun: Path | None = None
+
+
+def _robot_choice(robot: str) -> str:
+    """`--robot`: "simulated", "recorded", or a robot description (checked now)."""
+    if robot not in ("simulated", "recorded"):
+        from dsteleop.app.cli.options import check_robot
+
+        check_robot(robot)
+    return robot
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -98,9 +110,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--robot",
-        choices=("simulated", "recorded"),
         default="simulated",
-        help="replay against a fresh simulated robot (default) or the recorded one",
+        metavar="simulated|recorded|NAME|FILE",
+        help="replay against a fresh simulated robot (default: the session's), the recorded "
+        "one, or a simulated robot description (iiwa, panda, or a .toml file)",
     )
     parser.add_argument(
         "--as-recorded", action="store_true", help="metrics of the sessions as they happened"
@@ -169,7 +182,7 @@ def command(args: argparse.Namespace) -> ReplayCommand:
         inputs=_expand(list(args.inputs)),
         modes=modes,
         out=Path(args.out),
-        robot=args.robot,
+        robot=_robot_choice(args.robot),
         as_recorded=bool(args.as_recorded),
         retrack=bool(args.retrack),
         workers=int(args.workers),
@@ -249,6 +262,7 @@ def _work(unit: Unit) -> list[Any]:
             rotate=cmd.rotate,
             allow_partial=cmd.allow_partial,
             sink_for=sinks,
+            robot="iiwa" if cmd.robot in ("simulated", "recorded") else cmd.robot,
         )
         return [core.Run(path.name, path.name, None, recorded_s, tr) for tr in traces]
     session = read_session(path, warn_truncated=False)  # `run` read it first, and said so

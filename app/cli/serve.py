@@ -146,11 +146,11 @@ def run(args: argparse.Namespace) -> int:
             viewer = Viewer(
                 loop.broadcaster,
                 loop.controls,
-                scene=loop.plant.scene(),
+                scene=loop.task.scene(),
                 config=ViewerConfig(host=cmd.host, port=cmd.port),
-                utensils=tuple(loop.plant.describe().get("utensils", ())),
+                utensils=tuple(loop.task.describe().get("utensils", ())),
                 sliders=sliders_for(
-                    loop.config.arbitration, loop.plant.describe().get("goal_noise_m", 0.0)
+                    loop.config.arbitration, loop.task.describe().get("goal_noise_m", 0.0)
                 ),
                 arbitration=loop.config.arbitration,
                 source=source_label(spec),
@@ -158,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
                 info={"world": DemoConfig().describe()} if spec.kind == "demo" else None,
             )
             if opts.record is not None:
-                utensil = str(loop.plant.describe().get("utensil", "task"))
+                utensil = str(loop.task.describe().get("utensil", "task"))
                 loop.start_recording(new_session_folder(opts.record, loop.mode.value, utensil))
             viewer.start()
             sys.stderr.write(

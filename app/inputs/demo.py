@@ -61,7 +61,7 @@ from dsteleop.app.session.schema import TickRecord
 from dsteleop.arbitration import ArbitrationConfig, HandState
 from dsteleop.arbitration.se3 import stack as stack_states
 from dsteleop.robot.task import EventKind, Phase
-from dsteleop.tracking.mapping import MappingConfig, WorkspaceMapping
+from dsteleop.tracking.mapping import MappingConfig, WorkspaceMapping, human_openness
 from dsteleop.tracking.synthetic import LandmarkNoise, SyntheticSource, palm_facing_camera
 
 Array = NDArray[np.float64]
@@ -307,12 +307,6 @@ def _one(X: HandState) -> HandState:
     return HandState(X.position[None], X.rotation[None], X.openness[None])
 
 
-def human_openness(robot_openness: Array) -> Array:
-    """Robot fingers (thumb, index, middle, ring) -> human five (little follows ring)."""
-    g = np.asarray(robot_openness, dtype=np.float64)
-    return np.array([g[0], g[1], g[2], g[3], g[3]])
-
-
 class DemoCamera:
     """Converts the operator's base-frame hand into the virtual camera's frame."""
 
@@ -324,7 +318,7 @@ class DemoCamera:
         def at(t_s: float) -> tuple[HandState, Array]:
             X = operator.hand_at(t_s)
             p_cam, R_cam = self.mapping.to_camera(X)
-            g5 = human_openness(X.openness)
+            g5 = human_openness(X.openness, self.mapping.mix)
             return HandState(p_cam, R_cam, g5), g5
 
         return at

@@ -5,13 +5,15 @@ functions of `tick.py`. One tick:
 
     requests  <- controls (mode, calibrate, reset, params, recording), taken once
     input     <- hand.poll(now), re-anchored when the hand comes back
-    decide    -- tick.decide: arbitration, or the halt ramp / assist while lost
-    robot     <- plant.apply(X_next): IK, physics, task events; X_current read back
-    absorb    -- tick.absorb: the robot's report, segments, the operator history
+    decide    -- tick.decide: arbitration, or the halt ramp / assist while lost (the hand,
+                 or the robot: its state missing or older than ports.ROBOT_STALE_S)
+    robot     -> robot.apply(X_next, seq, now); robot.state(now): X_current and joints
+    task      <- task.update(state): phase, events, outcome (not while the robot is lost)
+    absorb    -- tick.absorb: the robot's and the task's report, segments, the history
     record    -> one TickRecord to every observer (and to the recorder, when recording)
 
 Everything a loop talks to is given to its constructor (the composition root is
-`app/cli/compose.py`): the hand, the plant, the clock, the observers, where the operator
+`app/cli/compose.py`): the hand, the robot, the task, the clock, the observers, where the operator
 history persists, the camera-frame recorder and where "Start recording" writes.
 """
 
@@ -43,7 +45,19 @@ from dsteleop.app.loop.timing import (
     RateClock,
     put_this_thread_first,
 )
-from dsteleop.app.ports import Clock, HandInput, HumanInput, Observer, Plant
+from dsteleop.app.ports import (
+    ROBOT_LOST,
+    ROBOT_STALE_S,
+    Clock,
+    HandInput,
+    HumanInput,
+    Observer,
+    PlantStep,
+    Robot,
+    RobotState,
+    Task,
+    TaskStep,
+)
 from dsteleop.app.session.episodes import EpisodeSplitter
 from dsteleop.app.session.schema import RecordingStatus, TickRecord, encode_event
 from dsteleop.app.session.video import FrameRecorder
@@ -51,6 +65,7 @@ from dsteleop.app.session.writer import HistoryFile, Recorder, SessionWriter, ne
 from dsteleop.arbitration import HandState, Mode, OperatorHistory, dim_names, make_arbiter
 from dsteleop.arbitration.arbiters import compile_kernels
 from dsteleop.errors import DsteleopError
+from dsteleop.robot.task import Phase
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
@@ -62,7 +77,8 @@ class TeleopLoop:
     Args:
         config: loop settings.
         hand: the operator's hand.
-        plant: the robot and task.
+        robot: the robot.
+        task: the task (judging the robot's measured state each tick).
         clock: time source (`ManualClock` for headless runs and tests).
         observers: called with every tick's record, in the loop's thread (must not block).
         history: the operator's previous attempts (eq 6); default: loaded from `history_file`.
@@ -76,7 +92,8 @@ class TeleopLoop:
         self,
         config: LoopConfig,
         hand: HandInput,
-        plant: Plant,
+        robot: Robot,
+        task: Task,
         clock: Clock | None = None,
         *,
         observers: Sequence[Observer] = (),
@@ -88,7 +105,8 @@ class TeleopLoop:
     ) -> None:
         self.config = config
         self.hand = hand
-        self.plant = plant
+        self.robot = robot
+        self.task = task
         self.clock = clock or MonotonicClock()
         self.rate = RateClock(config.rate_hz, self.clock)
         self.controls = Controls()
@@ -100,7 +118,7 @@ class TeleopLoop:
         self._frames = frame_recorder
         self.record_root = record_root
         self.meta = dict(meta or {})
-        self.dims = dim_names(plant.finger_names)
+        self.dims = dim_names(robot.finger_names)
         self._notes: list[str] = []
         self._recorder: Recorder | None = None
         self._episodes = EpisodeSplitter()
@@ -118,8 +136,10 @@ class TeleopLoop:
         self.mode = config.mode
         self.arbiter = make_arbiter(config.mode, config.arbitration)
         self.events_log: list[tuple[int, str]] = []
-        self.state = tick.start(plant.reset(), self.arbiter, history)
-        self.utensil = str(plant.describe().get("utensil", ""))
+        self._seq = 0  # the robot's command sequence number (one per tick, never reset)
+        self._robot_lost = ""  # why the robot cannot be driven ("" while it can)
+        self.state = tick.start(self._reset_world(None), self.arbiter, history)
+        self.utensil = str(task.describe().get("utensil", ""))
         self.tick_index = 0
         self._reset_state: HandState | None = self.state.X_current  # in the next record
 
@@ -146,9 +166,17 @@ class TeleopLoop:
             self.state, filter=self.arbiter.initial_state(len(self.dims))
         )
 
+    def _reset_world(self, utensil: str | None) -> HandState:
+        """The task set up again, then the robot home: its state there."""
+        self.task.reset(utensil)
+        rs = self.robot.reset(self.clock.now())
+        self._robot_lost = ""
+        self._last_step = TaskStep(Phase.PICK)
+        return rs.X
+
     def _reset_task(self, utensil: str | None) -> None:
-        self.state = tick.start(self.plant.reset(utensil), self.arbiter, self.state.history)
-        self.utensil = str(self.plant.describe().get("utensil", utensil or ""))
+        self.state = tick.start(self._reset_world(utensil), self.arbiter, self.state.history)
+        self.utensil = str(self.task.describe().get("utensil", utensil or ""))
         self._reset_state = self.state.X_current
         self.tick_index = 0
         self.events_log = []
@@ -190,7 +218,7 @@ class TeleopLoop:
         if self.record_root is None:
             log.warning("recording requested, but no recording folder is set (--record DIR)")
             return
-        utensil = str(self.plant.describe().get("utensil", "task"))
+        utensil = str(self.task.describe().get("utensil", "task"))
         try:
             self.start_recording(new_session_folder(self.record_root, self.mode.value, utensil))
         except DsteleopError as exc:
@@ -200,7 +228,7 @@ class TeleopLoop:
         params = dict(params)
         noise = params.pop("goal_noise_m", None)
         if noise is not None:
-            self.plant.set_goal_noise(float(noise))
+            self.task.set_goal_noise(float(noise))
         if params:
             try:
                 cfg = self.config.arbitration.replace(**params)
@@ -222,7 +250,8 @@ class TeleopLoop:
             "dims": list(self.dims),
             "source": self.hand.describe(),
             "mapping": self.hand.mapping_config(),
-            "plant": self.plant.describe(),
+            "plant": self.task.describe(),
+            "robot": self.robot.describe(),
             "operator_history": self.history.to_dict(),
             # Where it persists: the file and the hash of its content now, or None (empty,
             # kept nowhere: the default).
@@ -289,7 +318,7 @@ class TeleopLoop:
         self._apply(requests)
         reset_state, self._reset_state = self._reset_state, None
         inp = self.hand.poll(now)
-        goal = self.plant.goal()
+        goal = self.task.goal()
         if (
             self.state.lost
             and inp is not None
@@ -302,10 +331,20 @@ class TeleopLoop:
             inp = self.hand.reanchor(inp, tick.anchor_target(self.state))
         ended = self.hand.end_reason if self.hand.finished else ""
         self.state, decision = tick.decide(
-            self.state, self.config, self.arbiter, inp, goal, now, self._history_term(), ended
+            self.state,
+            self.config,
+            self.arbiter,
+            inp,
+            goal,
+            now,
+            self._history_term(),
+            ended,
+            self._robot_lost,
         )
         t_arb = self.clock.now()
-        result = self.plant.apply(decision.X_next)
+        self._seq += 1
+        self.robot.apply(decision.X_next, self._seq, now)
+        result = self._observe_robot(now)
         t_cmd = self.clock.now()
         self.state, segment_ended = tick.absorb(self.state, result, self.arbiter)
         if segment_ended and self._history_file is not None:
@@ -357,10 +396,30 @@ class TeleopLoop:
         )
         return dataclasses.replace(record, recording=status)
 
+    def _observe_robot(self, now_s: float) -> PlantStep:
+        """The robot's measured state and the task's judgement of it; while the robot is
+        lost (no state, or one older than ROBOT_STALE_S), the last state and no judgement,
+        and the next ticks halt."""
+        rs: RobotState | None = self.robot.state(now_s)
+        if rs is None or not now_s - rs.stamp_s <= ROBOT_STALE_S:
+            if not self._robot_lost:
+                log.warning(
+                    "%s: no robot state for %.2f s: halting", self.robot.name, ROBOT_STALE_S
+                )
+            self._robot_lost = ROBOT_LOST
+            return PlantStep(
+                self.state.X_current, self._last_step.phase, (), self._last_step.outcome
+            )
+        if self._robot_lost:
+            log.info("%s: robot state again", self.robot.name)
+        self._robot_lost = ""
+        self._last_step = self.task.update(rs)
+        return PlantStep.of(rs.X, self._last_step)
+
     def _history_term(self) -> Array | None:
         key = (len(self.history), self.config.arbitration)
         if self._hist_key != key:
-            F = len(self.plant.finger_names)
+            F = len(self.robot.finger_names)
             self._hist_term = self.history.term(F, self.config.arbitration.still_offset(F))
             self._hist_key = key
         return self._hist_term
@@ -496,4 +555,7 @@ class TeleopLoop:
             try:
                 self.hand.close()
             finally:
-                self.plant.close()
+                try:
+                    self.robot.close()
+                finally:
+                    self.task.close()

@@ -155,11 +155,14 @@ def decide(
     now_s: float,
     history_term: Array | None,
     ended: str = "",
+    robot_lost: str = "",
 ) -> tuple[LoopState, Decision]:
     """The first half of a tick (module docstring). `inp` is already re-anchored; `ended`
-    says why there is no more input once the source has ended ("" while it runs)."""
+    says why there is no more input once the source has ended ("" while it runs);
+    `robot_lost` why the robot cannot be driven (its state is missing or stale: the loop
+    halts as for a lost hand, "" while it can)."""
     dt = cfg.dt_s
-    reason = staleness(inp, now_s, cfg, ended)
+    reason = robot_lost or staleness(inp, now_s, cfg, ended)
     if not reason and inp is not None and inp.X_human is not None and goal is not None:
         X_h = inp.X_human
         X_h_prev = X_h if state.lost or state.X_human_prev is None else state.X_human_prev
@@ -197,7 +200,7 @@ def decide(
     done = goal is None  # the task has its outcome: the robot halts, whatever the hand does
     reason = outcome_words(state.outcome) if done else (reason or NO_INPUT)
     assisted: ArbitrationStep | None = None
-    if cfg.lost_policy is LostPolicy.ASSIST and goal is not None:
+    if cfg.lost_policy is LostPolicy.ASSIST and goal is not None and not robot_lost:
         U_cmd, assisted = _assist(state, cfg, goal)
         status = Status.ASSIST
     else:

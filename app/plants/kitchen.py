@@ -1,12 +1,22 @@
-"""The PyBullet kitchen (robot + world + pick-and-place task) as a `ports.Plant`.
+"""The kitchen pick-and-place task as a `ports.Task`, judging any robot that can reach it.
 
-A thin adapter from `dsteleop.robot.env.KitchenEnv`: `apply(X_next)` commands the pose and
-openness, steps one loop period of physics and the task (1/rate s: the world keeps the
-loop's time, whatever its rate; `robot.arm.RobotConfig.for_period`), and reports the
-achieved palm state and the task's own typed phase, events and outcome. Everything needed
-to rebuild the same plant (utensil, seed, goal noise, control period) is in `describe()`,
-which recordings store, so `plant_from_meta` gives replays the same world and the same
-noisy goals.
+The task owns a PyBullet world (`robot.env.KitchenEnv`: table, holder, utensils, bin, and a
+robot of the judged robot's description) and `robot.task.PickPlaceTask` (goals, phases,
+events, outcome). How it judges a robot (docs/ARCHITECTURE.md):
+
+    same world   the judged robot is this world's robot (`simulated_kitchen`: a
+                 `plants.simulated.SimulatedRobot` sharing the env). `Robot.apply` stepped
+                 the physics; `update` only observes: the utensil, the contacts, the task.
+    twin         any other robot (a linked one): this world's robot is its twin. `update`
+                 drives the twin's joints to the measured ones (position motors, one loop
+                 period of physics) with the measured finger command, then observes as
+                 above. The utensil moves with the twin, so the outcome is the twin's: exact
+                 where the far end's world is this one (the reference far end, `robot-sim`),
+                 an estimate of the real scene for a real arm.
+
+Everything that rebuilds the same task (utensil, seed, goal noise, control period, timeout)
+is in `describe()`, which recordings store, so `task_from_meta` gives replays the same world
+and the same noisy goals.
 """
 
 from __future__ import annotations
@@ -16,20 +26,23 @@ from typing import Any
 
 import numpy as np
 
-from dsteleop.app.ports import PlantStep
+from dsteleop.app.plants.described import joint_names_of
+from dsteleop.app.plants.simulated import SimulatedRobot
+from dsteleop.app.ports import RobotState, TaskStep
 from dsteleop.arbitration import HandState
 from dsteleop.robot.arm import CONTROL_DT_S, RobotConfig
+from dsteleop.robot.description import RobotDescription, load_description
 from dsteleop.robot.env import EnvConfig, KitchenEnv
-from dsteleop.robot.hand_urdf import FINGER_NAMES
 from dsteleop.robot.scene import SceneGeometry
 from dsteleop.robot.task import Phase
 from dsteleop.robot.world import UTENSIL_NAMES
 
 
-class KitchenPlant:
-    """Robot and task for the loop.
+class KitchenTask:
+    """The kitchen task (module docstring).
 
     Args:
+        description: the judged robot's description (its twin, or itself, stands here).
         utensil: the utensil to pick (one of `UTENSIL_NAMES`).
         seed: seed of the goal noise.
         goal_noise_m: std-dev of the noise on each goal position the robot knows [m]
@@ -38,14 +51,14 @@ class KitchenPlant:
         export_scene: compute per-tick link poses for a viewer.
         time_limit_s: a trial without an outcome after this long fails (`timeout`) [s]
             (None: the task's default).
-        control_dt_s: the loop's period [s]: each `apply` advances the world this much
-            (None: the robot's default, 1/30 s).
+        control_dt_s: the loop's period [s]: each tick advances the world this much (None:
+            the robot's default, 1/30 s).
+        twin: judge a robot outside this world through its twin (module docstring).
     """
-
-    finger_names: tuple[str, ...] = FINGER_NAMES
 
     def __init__(
         self,
+        description: RobotDescription | None = None,
         utensil: str = "spoon",
         seed: int = 0,
         goal_noise_m: float | None = None,
@@ -53,8 +66,9 @@ class KitchenPlant:
         export_scene: bool = False,
         time_limit_s: float | None = None,
         control_dt_s: float | None = None,
+        twin: bool = True,
     ) -> None:
-        cfg = EnvConfig()
+        cfg = EnvConfig(description=description or load_description("iiwa"))
         if control_dt_s is not None:
             cfg = dataclasses.replace(cfg, robot=RobotConfig.for_period(control_dt_s))
         task = cfg.task
@@ -68,29 +82,28 @@ class KitchenPlant:
         self.utensil = utensil
         self.seed = seed
         self.export_scene = export_scene
+        self.twin = twin
         self.env = KitchenEnv(self.config)
 
-    # --- Plant interface ---------------------------------------------------------------
+    # --- Task interface ----------------------------------------------------------------
 
-    def reset(self, utensil: str | None = None) -> HandState:
+    def reset(self, utensil: str | None = None) -> None:
         if utensil is not None:
             self.utensil = utensil
-        if self.env.config != self.config:
-            self.env.close()
-            self.env = KitchenEnv(self.config)
-        state = self.env.reset(self.utensil, self.seed)
-        return state.palm
+        self.env.config = self.config  # a new goal noise (the same robot and world)
+        self.env.reset(self.utensil, self.seed)
 
     def goal(self) -> HandState | None:
         task = self.env.task
         return None if task.phase == Phase.DONE else task.goal
 
-    def apply(self, X_next: HandState) -> PlantStep:
-        self.env.set_target(X_next.position, X_next.rotation, X_next.openness)
-        state = self.env.step()
+    def update(self, state: RobotState) -> TaskStep:
+        if self.twin:
+            names = joint_names_of(self.config.description)
+            self.env.follow(dict(zip(names, state.joints.tolist(), strict=True)), state.X.openness)
+        self.env.observe_task()
         task = self.env.task
-        return PlantStep(
-            X_current=state.palm,
+        return TaskStep(
             phase=task.phase,
             events=tuple(self.env.last_events),
             outcome=task.outcome,
@@ -118,6 +131,8 @@ class KitchenPlant:
             "place_true": _pose(task.place_true),
             "utensils": list(UTENSIL_NAMES),
             "control_dt_s": self.config.robot.control_dt_s,
+            "robot": self.config.description.name,
+            "judged": "twin" if self.twin else "same world",
         }
 
     def scene(self) -> SceneGeometry:
@@ -126,18 +141,25 @@ class KitchenPlant:
     def close(self) -> None:
         self.env.close()
 
-    # --- for the demo operator ----------------------------------------------------------
-
     def true_goals(self) -> tuple[HandState, HandState]:
         """The true pick and place palm poses (open hand), noise-free, as a person watching
         the scene sees them: the pick is the grasp pose of the utensil where it is now (the
         task's `pick_true` until the utensil moves, e.g. pushed by a failed grasp)."""
         task = self.env.task
-        n = len(FINGER_NAMES)
+        n = len(self.config.description.fingers)
         return (
             HandState(*self.env.grasp_pose(), np.ones(n)),
             HandState(*task.place_true, np.ones(n)),
         )
+
+
+def simulated_kitchen(
+    description: RobotDescription | None = None, **task_options: Any
+) -> tuple[SimulatedRobot, KitchenTask]:
+    """A simulated robot and the kitchen task in one world (module docstring: same world);
+    `task_options` are `KitchenTask`'s."""
+    task = KitchenTask(description, twin=False, **task_options)
+    return SimulatedRobot(task.env), task
 
 
 def _pose(pose: tuple[Any, Any]) -> dict[str, list[float]]:
@@ -145,16 +167,15 @@ def _pose(pose: tuple[Any, Any]) -> dict[str, list[float]]:
     return {"p": [float(x) for x in p], "R": [float(x) for x in R.ravel()]}
 
 
-def plant_from_meta(meta: dict[str, Any], export_scene: bool = False) -> KitchenPlant:
-    """The plant a recording describes (defaults for what it does not say)."""
-    plant = KitchenPlant(
-        utensil=str(meta.get("utensil", "spoon")),
-        seed=int(meta.get("seed", 0)),
-        goal_noise_m=meta.get("goal_noise_m"),
-        goal_noise_rad=meta.get("goal_noise_rad"),
-        export_scene=export_scene,
-        time_limit_s=(meta.get("task") or {}).get("timeout_s"),
+def task_options_from_meta(meta: dict[str, Any]) -> dict[str, Any]:
+    """The `KitchenTask` options a recording's task metadata gives (defaults for what it
+    does not say)."""
+    return {
+        "utensil": str(meta.get("utensil", "spoon")),
+        "seed": int(meta.get("seed", 0)),
+        "goal_noise_m": meta.get("goal_noise_m"),
+        "goal_noise_rad": meta.get("goal_noise_rad"),
+        "time_limit_s": (meta.get("task") or {}).get("timeout_s"),
         # Sessions before the world kept the loop's rate stepped 1/30 s a tick whatever it was.
-        control_dt_s=float(meta.get("control_dt_s") or CONTROL_DT_S),
-    )
-    return plant
+        "control_dt_s": float(meta.get("control_dt_s") or CONTROL_DT_S),
+    }

@@ -2,9 +2,11 @@
 
 A session replays its recorded human input through a fresh loop, as fast as the machine
 allows, once per requested mode: the same hand input at the same tick times, a fresh robot
-and task with the session's seed and goal noise (`robot="simulated"`), so the modes are
-paired; or against the robot the session recorded (`robot="recorded"`, open loop: the
-recorded arbitration comes back exactly, on any machine). `as_recorded` reads a session's
+and task with the session's seed and goal noise (`robot="simulated"`: the robot the session
+recorded, the iiwa for sessions from before robots were descriptions; or a robot description
+named or given as a file, `--robot NAME|FILE`), so the modes are paired; or against the
+robot the session recorded (`robot="recorded"`, open loop: the recorded arbitration comes
+back exactly, on any machine). `as_recorded` reads a session's
 own ticks as it happened.
 
 Metrics per run (paper Section IV-D), over the ticks where the arbitration ran; actions are
@@ -46,16 +48,18 @@ from numpy.typing import NDArray
 from dsteleop.app.inputs.recorded import RecordedHandInput
 from dsteleop.app.loop import LoopConfig, TeleopLoop
 from dsteleop.app.loop.timing import ManualClock
-from dsteleop.app.ports import HandInput, Plant
+from dsteleop.app.ports import HandInput, Robot, Task
 from dsteleop.app.session.episodes import Episode
 from dsteleop.app.session.reader import Session
 from dsteleop.app.session.schema import TickRecord
 from dsteleop.app.session.trace import Trace
 from dsteleop.arbitration import Mode, OperatorHistory, metrics
+from dsteleop.errors import InputError
 from dsteleop.robot.scene import SceneGeometry
 
 Array = NDArray[np.float64]
-Robot = Literal["simulated", "recorded"]
+#: "simulated" (the session's robot), "recorded", or a robot description's name or file.
+RobotChoice = Literal["simulated", "recorded"] | str
 
 
 def session_config(session: Session, mode: Mode | None) -> LoopConfig:
@@ -75,61 +79,81 @@ def run_headless(
     hand: HandInput,
     tick_times: Sequence[float],
     cfg: LoopConfig,
-    plant: Plant,
+    world: tuple[Robot, Task],
     history: OperatorHistory | None = None,
     sink: RunSink | None = None,
 ) -> Trace:
-    """Run a fresh loop over `tick_times` on a manual clock, as fast as possible; its trace.
-    `sink` gets the run's records before the plant closes."""
+    """Run a fresh loop over `tick_times` on a manual clock, as fast as possible, with the
+    (robot, task) of `world`; its trace. `sink` gets the run's records before they close."""
+    robot, task = world
     clock = ManualClock(tick_times[0] if tick_times else 0.0)
-    loop = TeleopLoop(cfg, hand, plant, clock=clock, history=history or OperatorHistory())
+    loop = TeleopLoop(cfg, hand, robot, task, clock=clock, history=history or OperatorHistory())
     records: list[TickRecord] = []
     try:
         for t in tick_times:
             clock.sleep_until(t)
             records.append(loop.tick(t))
         if sink is not None:
-            sink(records, plant.scene())
+            sink(records, task.scene())
     finally:
         loop.close()
-    v_max = cfg.arbitration.v_max(len(plant.finger_names))
+    v_max = cfg.arbitration.v_max(len(robot.finger_names))
     return Trace.of(name, cfg.mode, records, v_max)
 
 
-def simulated_plant(plant_meta: dict[str, Any], export_scene: bool = False) -> Plant:
-    """A fresh PyBullet kitchen built from a session's plant metadata (`export_scene`: with
-    per-tick scene poses, for a viewer or a recording)."""
-    from dsteleop.app.plants.kitchen import plant_from_meta
+def simulated_world(
+    meta: dict[str, Any], export_scene: bool = False, robot: str = "simulated"
+) -> tuple[Robot, Task]:
+    """A fresh simulated robot and kitchen task built from a session's metadata (its task's
+    seed, noise and period; its robot, or the iiwa for a session recorded before robots were
+    descriptions; `robot` a description's name or file instead of "simulated");
+    `export_scene`: with per-tick scene poses, for a viewer or a recording."""
+    from dsteleop.app.plants.kitchen import simulated_kitchen, task_options_from_meta
+    from dsteleop.robot.description import description_from_record, load_description
 
-    return plant_from_meta(plant_meta, export_scene=export_scene)
+    desc = (
+        description_from_record(meta.get("robot"))
+        if robot == "simulated"
+        else load_description(robot)
+    )
+    recorded = meta.get("dims")
+    if recorded is not None and len(recorded) - 6 != len(desc.fingers):
+        raise InputError(
+            f"the session's hand drove {len(recorded) - 6} robot fingers, robot {desc.name!r} "
+            f"has {len(desc.fingers)}: replay it on a robot with as many (--robot), or "
+            "re-track its video (--retrack)"
+        )
+    options = task_options_from_meta(meta.get("plant", {}))
+    return simulated_kitchen(desc, export_scene=export_scene, **options)
 
 
 def replay_session(
-    session: Session, mode: Mode, robot: Robot = "simulated", sink: RunSink | None = None
+    session: Session, mode: Mode, robot: RobotChoice = "simulated", sink: RunSink | None = None
 ) -> Trace:
     """Re-run the session's recorded hand input through a fresh loop in `mode`.
 
     Args:
         session: the session.
         mode: arbitration mode of the replay.
-        robot: "simulated" (a fresh PyBullet robot and task, closed loop) or "recorded"
-            (the robot states the session recorded, open loop).
+        robot: "simulated" (a fresh PyBullet robot and task, closed loop: the session's
+            robot), a robot description's name or file (likewise, that robot), or
+            "recorded" (the robot states the session recorded, open loop).
         sink: gets the run's records (and the scene, with per-tick poses) when it ends.
     """
-    from dsteleop.app.plants.recorded import RecordedPlant
+    from dsteleop.app.plants.recorded import recorded_pair
 
     hand = RecordedHandInput(session.records, f"replay of {session.name}")
-    plant: Plant = (
-        RecordedPlant(session)
+    world: tuple[Robot, Task] = (
+        recorded_pair(session)
         if robot == "recorded"
-        else simulated_plant(session.meta.get("plant", {}), export_scene=sink is not None)
+        else simulated_world(session.meta, export_scene=sink is not None, robot=robot)
     )
     return run_headless(
         session.name,
         hand,
         [r.t_s for r in session.records],
         session_config(session, mode),
-        plant,
+        world,
         session.history,
         sink,
     )

@@ -15,7 +15,7 @@ from typing import Any
 
 from dsteleop.app.inputs.tracked import replayed_samples
 from dsteleop.app.loop import LoopConfig
-from dsteleop.app.replay.core import SinkFor, run_headless, session_config, simulated_plant
+from dsteleop.app.replay.core import SinkFor, run_headless, session_config, simulated_world
 from dsteleop.app.session.episodes import Episode
 from dsteleop.app.session.reader import Session
 from dsteleop.app.session.trace import Trace
@@ -73,10 +73,16 @@ def replay_video(
     rotate: int | None = None,
     allow_partial: bool = False,
     sink_for: SinkFor | None = None,
+    robot: str = "iiwa",
 ) -> tuple[list[Trace], float]:
     """Track a video and run it as a session in each mode (with `arbitration`, default the
-    defaults); returns (traces, duration [s]). `rotate`, `allow_partial`: `track_video`;
-    `sink_for(name, mode)` gets each run's records."""
+    defaults) on the simulated `robot` (a description's name or file); returns (traces,
+    duration [s]). `rotate`, `allow_partial`: `track_video`; `sink_for(name, mode)` gets each
+    run's records."""
+    from dsteleop.robot.description import load_description
+
+    desc = load_description(robot)
+    mapping = MappingConfig(robot_fingers=tuple((f.name, f.human) for f in desc.fingers))
     samples = track_video(path, rotate=rotate, allow_partial=allow_partial)
     if not samples:
         raise InputError(f"{path}: no frames")
@@ -86,11 +92,11 @@ def replay_video(
     ticks = [samples[0].t_capture_s + k / cfg0.rate_hz for k in range(n)]
     traces = []
     for mode in modes:
-        hand = replayed_samples(samples, WorkspaceMapping(MappingConfig()), "tracked video")
+        hand = replayed_samples(samples, WorkspaceMapping(mapping), "tracked video")
         sink = None if sink_for is None else sink_for(path.name, mode)
-        plant = simulated_plant({}, export_scene=sink is not None)
+        world = simulated_world({}, export_scene=sink is not None, robot=str(desc.path))
         traces.append(
-            run_headless(path.name, hand, ticks, cfg0.replace(mode=mode), plant, sink=sink)
+            run_headless(path.name, hand, ticks, cfg0.replace(mode=mode), world, sink=sink)
         )
     return traces, duration
 
@@ -145,7 +151,7 @@ def replay_retracked(
                 replayed_samples(samples, WorkspaceMapping(mapping), "re-tracked video"),
                 ticks,
                 session_config(view, m),
-                simulated_plant(view.meta.get("plant", {}), export_scene=sink is not None),
+                simulated_world(view.meta, export_scene=sink is not None),
                 view.history,
                 sink,
             )

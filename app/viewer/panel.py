@@ -40,7 +40,7 @@ from numpy.typing import NDArray
 from dsteleop.app.ports import HumanInput
 from dsteleop.app.session.schema import RecordingStatus, Status, TickRecord
 from dsteleop.arbitration import ArbitrationStep
-from dsteleop.tracking.mapping import ROBOT_FINGERS, MappingConfig
+from dsteleop.tracking.mapping import MappingConfig
 from dsteleop.tracking.sources import SourceSpec
 
 Array = NDArray[np.float64]
@@ -452,7 +452,7 @@ def mapping_rows(config: MappingConfig) -> tuple[tuple[str, str], ...]:
         rows.append((f"hand {hand}", f"robot +{axis} ({word}), x{config.scale[i]:g}"))
     for rot, (axis, word) in zip(("roll", "pitch", "yaw"), _ROBOT_AXES, strict=True):
         rows.append((f"turn the hand about the {word} axis", f"robot {rot} (about {axis})"))
-    for robot, human in ROBOT_FINGERS.items():
+    for robot, human in config.robot_fingers:
         src = " + ".join(human) + (" (mean)" if len(human) > 1 else "")
         rows.append((f"open / close {src}", f"robot {robot}"))
     return tuple(rows)
