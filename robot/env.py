@@ -95,8 +95,11 @@ class EnvConfig:
 
     @property
     def home_rotation(self) -> Array:
-        """Palm orientation at reset (the robot's home: palm down for both shipped robots)."""
-        return so3_exp(np.asarray(self.description.home_rotvec_rad, dtype=np.float64))
+        """Palm orientation at reset (the robot's home: palm down for both shipped robots).
+        Entries within 1e-12 of zero are zero, so a half or quarter turn is exact (the iiwa's
+        palm-down home is exactly diag(-1, 1, -1), as it always was)."""
+        R = so3_exp(np.asarray(self.description.home_rotvec_rad, dtype=np.float64))
+        return np.where(np.abs(R) < 1e-12, 0.0, R)
 
 
 def _regions() -> SceneRegions:

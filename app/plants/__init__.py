@@ -1,1 +1,2 @@
-"""The `ports.Plant`s: the PyBullet kitchen (`kitchen`) and a recorded robot (`recorded`)."""
+"""The robots and tasks behind the ports: a simulated robot of any description
+(`simulated`), the kitchen task (`kitchen`), a recorded robot and task (`recorded`)."""

@@ -193,7 +193,7 @@ def _shape(v: VisualGeometry) -> Any:
 def log_true_goals(rec: rr.RecordingStream, plant_meta: dict[str, Any]) -> None:
     """The task's true pick and place poses, static (`layout.goal_true`)."""
     for name in ("pick", "place"):
-        g = plant_meta.get(f"{name}_true")  # {"p": [3], "R": [9] row-major} (KitchenPlant)
+        g = plant_meta.get(f"{name}_true")  # {"p": [3], "R": [9] row-major} (KitchenTask)
         if not isinstance(g, dict) or "p" not in g or "R" not in g:
             continue
         p = np.asarray(g["p"], dtype=np.float64)

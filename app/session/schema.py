@@ -233,7 +233,7 @@ def encode(r: TickRecord) -> dict[str, Any]:
         "hand": _encode_hand(r.hand),
         "X_human": pack(r.X_human),
         # The robot's side at full precision: a replay against the recorded robot reads it
-        # back as its input (`plants.recorded.RecordedPlant`).
+        # back as its input (`plants.recorded.RecordedRobot`).
         "X_current": pack(r.plant.X_current),
         "X_goal": pack(r.X_goal),
         "X_next": _sig(pack(r.X_next)),

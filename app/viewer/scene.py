@@ -125,7 +125,8 @@ def _moved(last: Array | None, new: Array, tol: float) -> bool:
 
 
 class HandProxy:
-    """A palm box and four finger boxes, posed from a `HandState` (ghost or robot)."""
+    """A palm box and four finger boxes, posed from a `HandState` (ghost or robot); a robot
+    with other fingers than four (a gripper) shows their mean openness on all four."""
 
     def __init__(self, scene: Any, name: str, rgb: tuple[int, int, int], opacity: float) -> None:
         self.root = scene.add_frame(name, show_axes=True, axes_length=0.06, axes_radius=0.003)
@@ -165,6 +166,8 @@ class HandProxy:
             self.root.position = p
             self.root.wxyz = q
         g = np.asarray(X.openness, dtype=np.float64)
+        if g.shape != self._openness.shape:  # another robot's fingers (a gripper: one):
+            g = np.full(self._openness.shape, float(g.mean()) if g.size else 1.0)  # their mean
         if g.shape == self._openness.shape and np.abs(g - self._openness).max() > 0.01:
             self._openness = g.copy()
             for (_, base, sign), handle, gi in zip(GHOST_FINGERS, self.fingers, g):
