@@ -123,6 +123,10 @@ def test_wheel_installs_in_a_fresh_environment_and_runs(tmp_path: Path) -> None:
     assert app_modules <= names, sorted(app_modules - names)
     # The browser view's stylesheet and templates, as package data.
     assert {f"dsteleop/web_assets/{a}" for a in WEB_ASSETS} <= names
+    # The shipped robot descriptions and the hand's URDF they mount (docs/robots.md).
+    robots = {f"dsteleop/robot/robots/{p.name}" for p in (REPO / "robot/robots").glob("*.toml")}
+    assert {"dsteleop/robot/robots/iiwa.toml", "dsteleop/robot/robots/panda.toml"} <= robots
+    assert robots | {"dsteleop/robot/assets/dsteleop_hand.urdf"} <= names
 
     # The locked dependency set, then the wheel alone, into a new virtualenv.
     req = tmp_path / "requirements.txt"

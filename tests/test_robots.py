@@ -274,3 +274,36 @@ def test_the_demo_succeeds_on_the_panda_about_as_often_as_on_the_iiwa(mode: Mode
     """Seeds 0-9, the same demo settings: the Panda's successes within 2 of the iiwa's."""
     iiwa, panda = _demo_successes(mode, "iiwa"), _demo_successes(mode, "panda")
     assert abs(panda - iiwa) <= 2, (mode, iiwa, panda)
+
+
+def test_the_page_draws_the_panda_and_its_one_gauge_of_fingers() -> None:
+    """`serve --robot panda`'s view: a real Viser server follows a live Panda loop; the scene
+    is drawn from the Panda's URDF meshes, the gauges have one finger dimension."""
+    import time
+
+    from dsteleop.app.cli.compose import build
+    from dsteleop.app.cli.options import LoopOptions
+    from dsteleop.app.loop.timing import ManualClock
+    from dsteleop.app.viewer.server import Viewer, ViewerConfig
+
+    built = build(LoopOptions.of("demo", robot="panda"), realtime=False, export_scene=True)
+    loop = built.loop
+    viewer = Viewer(loop.broadcaster, loop.controls, loop.task.scene(), ViewerConfig(port=0))
+    try:
+        viewer.start()
+        clock = loop.clock
+        assert isinstance(clock, ManualClock)
+        for _ in range(90):
+            record = loop.tick(clock.now())
+            clock.advance(loop.config.dt_s)
+            time.sleep(0.005)
+        assert record.dims[6:] == ("gripper",) and record.X_current.openness.shape == (1,)
+        deadline = time.monotonic() + 10.0
+        while viewer.stats.panel_updates < 2 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert viewer.stats.scene_updates >= 2 and viewer.stats.errors == 0
+        frames = set(viewer.scene.frames)
+        assert {"robot/panda_hand", "robot/panda_leftfinger", "robot/panda_rightfinger"} <= frames
+    finally:
+        viewer.close()
+        built.close()
