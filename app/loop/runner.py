@@ -47,7 +47,13 @@ from dsteleop.app.ports import Clock, HandInput, HumanInput, Observer, Plant
 from dsteleop.app.session.episodes import EpisodeSplitter
 from dsteleop.app.session.schema import RecordingStatus, TickRecord, encode_event
 from dsteleop.app.session.video import FrameRecorder
-from dsteleop.app.session.writer import HistoryFile, Recorder, SessionWriter, new_session_folder
+from dsteleop.app.session.writer import (
+    EpisodeSink,
+    HistoryFile,
+    Recorder,
+    SessionWriter,
+    new_session_folder,
+)
 from dsteleop.arbitration import HandState, Mode, OperatorHistory, dim_names, make_arbiter
 from dsteleop.arbitration.arbiters import compile_kernels
 from dsteleop.errors import DsteleopError
@@ -70,6 +76,8 @@ class TeleopLoop:
         frame_recorder: records the camera frames of a session beside it, if any.
         record_root: where a recording requested through `controls` is written.
         meta: extra metadata for recordings (source description, seeds, ...).
+        episode_sink: gets every recorded episode once its ticks are written (e.g. a live
+            LeRobot dataset, `--record-lerobot`).
     """
 
     def __init__(
@@ -85,8 +93,10 @@ class TeleopLoop:
         frame_recorder: FrameRecorder | None = None,
         record_root: Path | None = None,
         meta: dict[str, Any] | None = None,
+        episode_sink: EpisodeSink | None = None,
     ) -> None:
         self.config = config
+        self._episode_sink = episode_sink
         self.hand = hand
         self.plant = plant
         self.clock = clock or MonotonicClock()
@@ -246,7 +256,7 @@ class TeleopLoop:
             "started_at": datetime.datetime.now(datetime.timezone.utc).isoformat(),
             **(extra or {}),
         }
-        self._recorder = Recorder(SessionWriter(folder, meta))
+        self._recorder = Recorder(SessionWriter(folder, meta), self._episode_sink)
         self.recordings.append(Path(folder))
         self._episodes = EpisodeSplitter()
         self._recording_t0 = None
