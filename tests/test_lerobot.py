@@ -120,6 +120,27 @@ def test_the_sample_sessions_export_to_the_v3_layout(samples_dataset: Path) -> N
     np.testing.assert_allclose(stats["observation.state"]["max"], all_state.max(0), atol=1e-6)
 
 
+def test_statistics_are_lerobots() -> None:
+    """Per episode as numpy computes them; over the dataset, the exact mean, std, min and
+    max of all frames; the camera's from its histogram equal to the pixels' own."""
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(size=(40, 3)), rng.normal(2.0, 3.0, size=(90, 3))
+    sa, sb = layout.feature_stats(a), layout.feature_stats(b)
+    np.testing.assert_allclose(sa["q10"], np.quantile(a, 0.10, axis=0))
+    agg = layout.aggregate_stats([{"f": sa}, {"f": sb}])["f"]
+    both = np.concatenate([a, b])
+    for name, f in (("mean", np.mean), ("std", np.std), ("min", np.min), ("max", np.max)):
+        np.testing.assert_allclose(agg[name], f(both, axis=0), rtol=1e-12, atol=1e-12)
+    assert agg["count"].tolist() == [130]
+    pixels = rng.integers(0, 256, size=(7, 13, 11, 3)).astype(np.uint8)
+    cam = layout.image_stats(pixels)
+    ref = layout.feature_stats(pixels.reshape(-1, 3) / 255.0)
+    for name in ("min", "max", "mean", "std", "q01", "q50", "q99"):
+        assert cam[name].shape == (3, 1, 1)
+        np.testing.assert_allclose(cam[name].ravel(), ref[name], rtol=1e-12, atol=1e-12)
+    assert cam["count"].tolist() == [7]
+
+
 def test_the_layout_check_finds_what_is_broken(samples_dataset: Path, tmp_path: Path) -> None:
     """Our check can fail: a gap in the frames, a wrong dtype, a lost stats entry."""
     path = samples_dataset / "data/chunk-000/file-000.parquet"
@@ -337,24 +358,19 @@ def test_lerobot_doctor_accepts_an_exported_video_session(
     severities = {c["name"]: c["severity"] for c in report["checks"]}
     assert report["codebase_version"] == "v3.0" and report["total_episodes"] >= 1
     assert "FAIL" not in severities.values(), report
-    assert list(severities.values()).count("PASS") >= 10, severities
-    # Its only warnings are about the data (fingers fully open), never the format.
-    for c in report["checks"]:
-        if c["severity"] == "WARN":
-            assert c["name"] in ("Action Quality", "Data Distribution", "Anomaly Detection"), c
-
-
-def test_run_records_a_dataset_live(tmp_path: Path) -> None:
-    out = tmp_path / "live"
-    r = dsteleop(
-        "run", "--source", "demo", "--mode", "DS", "--seed", "0", "--record-lerobot", str(out)
-    )
-    assert r.returncode == 0, r.stderr
-    assert problems(out) == []
-    ds = read_dataset(out)
-    assert len(ds.sessions) == 1 and ds.episodes[0]["dsteleop/outcome"] in ("success", "failure")
-    summary = json.loads(r.stdout.strip().splitlines()[-1])
-    assert summary["lerobot"]["episodes"] == 1
+    # The format's checks pass; warnings, if any, are about the data itself (a hand lost
+    # when the video ends freezes the actions; fingers held fully open sit at the limit).
+    for name in ("Metadata & Format Compliance", "Temporal Consistency", "Video Integrity",
+                 "Episode Health", "Training Readiness"):  # fmt: skip
+        assert severities[name] == "PASS", (name, report)
+    data_checks = {
+        "Action Quality",
+        "Data Distribution",
+        "Anomaly Detection",
+        "Per-Episode Summary",
+    }
+    assert {n for n, s in severities.items() if s == "WARN"} <= data_checks, severities
+    assert len(severities) >= 10
 
 
 RATE_HZ = 30.0

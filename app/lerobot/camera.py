@@ -127,8 +127,8 @@ class CameraEncoder:
             or frame.format.name != (self.settings["pix_fmt"])
         ):
             frame = frame.reformat(self.width, self.height, self.settings["pix_fmt"])
-        else:
-            frame = frame.reformat()  # a copy: the decoder's frame is reused
+        # The encoder takes a reference to the frame as it is sent: a frame repeated for the
+        # next tick is sent again with its next stamp.
         frame.pts = self.frames
         frame.time_base = Fraction(1, self.fps)
         for packet in self._stream.encode(frame):
@@ -168,11 +168,14 @@ class CameraEncoder:
         }
 
 
-def rgb(frame: Any, max_side: int = 300) -> NDArray[np.uint8]:
-    """A frame as RGB (H, W, 3), downsampled like LeRobot's statistics do above `max_side`."""
-    a: NDArray[np.uint8] = frame.to_ndarray(format="rgb24")
-    h, w = a.shape[:2]
+def rgb(frame: Any, max_side: int = 300, target: int = 150) -> NDArray[np.uint8]:
+    """A frame as RGB (H, W, 3) for the statistics, reduced as LeRobot's statistics reduce
+    frames of `max_side` pixels or more (by the whole factor that brings the longer side
+    near `target`; scaled by FFmpeg here rather than strided)."""
+    h, w = frame.height, frame.width
     if max(h, w) >= max_side:
-        step = int(max(h, w) / 150)
-        a = a[::step, ::step]
-    return a
+        step = int(max(h, w) / target)
+        a: NDArray[np.uint8] = frame.reformat(w // step, h // step, "rgb24").to_ndarray()
+        return a
+    out: NDArray[np.uint8] = frame.to_ndarray(format="rgb24")
+    return out

@@ -109,7 +109,11 @@ def plan(inputs: Sequence[Path], fps: int | None, which: Which) -> Plan:
     if not eps:
         raise InputError(
             "no episode to export"
-            + (" (none ended with an outcome; --episodes all exports them)" if which else "")
+            + (
+                " (none ended with an outcome; --episodes all exports them)"
+                if which == "counted"
+                else ""
+            )
         )
     return Plan(
         sessions=sessions,

@@ -121,10 +121,12 @@ def features(dims: Sequence[str], camera: Mapping[str, Any] | None) -> dict[str,
     return out
 
 
-def state_vector(X: HandState) -> Array:
-    """A state as `observation.state` lists it: position, quaternion (x, y, z, w), openness."""
-    q = quat_wxyz_from_matrix(X.rotation)
-    return np.concatenate([X.position, q[1:], q[:1], X.openness])
+def state_vectors(states: Sequence[HandState]) -> NDArray[np.float32]:
+    """States as `observation.state` lists them: position, quaternion (x, y, z, w), openness."""
+    p = np.array([X.position for X in states], dtype=np.float64).reshape(-1, 3)
+    q = quat_wxyz_from_matrix(np.array([X.rotation for X in states]).reshape(-1, 3, 3))
+    g = np.array([X.openness for X in states], dtype=np.float64).reshape(len(states), -1)
+    return np.concatenate([p, q[:, 1:], q[:, :1], g], axis=1).astype(np.float32)
 
 
 def frame_columns(
@@ -147,8 +149,8 @@ def frame_columns(
         else:
             before.append(r.X_reset if r.X_reset is not None else r.X_current)
     cols: dict[str, Any] = {
-        "observation.state": np.array([state_vector(X) for X in before], dtype=np.float32),
-        "action": np.array([state_vector(r.X_next) for r in records], dtype=np.float32),
+        "observation.state": state_vectors(before),
+        "action": state_vectors([r.X_next for r in records]),
     }
     arbitrated = np.array([r.step is not None for r in records])
     for key, name in PER_DIM.items():
@@ -194,13 +196,34 @@ def feature_stats(a: NDArray[Any]) -> dict[str, NDArray[Any]]:
 
 def image_stats(samples_rgb: NDArray[np.uint8]) -> dict[str, NDArray[Any]]:
     """LeRobot's statistics of a camera: per channel over sampled frames (N, H, W, 3), in
-    [0, 1], each of shape (3, 1, 1)."""
-    x = samples_rgb.reshape(-1, 3).astype(np.float64) / 255.0
-    s = feature_stats(x)
-    return {
-        k: v if k == "count" else v.reshape(3, 1, 1)
-        for k, v in {**s, "count": np.array([samples_rgb.shape[0]])}.items()
+    [0, 1], each of shape (3, 1, 1). Computed from each channel's histogram of its 256
+    values (exact: the quantiles interpolate linearly between order statistics, as
+    `numpy.quantile` does)."""
+    x = samples_rgb.reshape(-1, 3)
+    n = x.shape[0]
+    values = np.arange(256, dtype=np.float64)
+    out: dict[str, list[float]] = {k: [] for k in ("min", "max", "mean", "std")}
+    quantiles: dict[str, list[float]] = {f"q{round(q * 100):02d}": [] for q in QUANTILES}
+    for c in range(3):
+        hist = np.bincount(x[:, c], minlength=256).astype(np.float64)
+        mean = float(hist @ values) / n
+        out["mean"].append(mean)
+        out["std"].append(float(np.sqrt(max(hist @ (values - mean) ** 2 / n, 0.0))))
+        present = np.flatnonzero(hist)
+        out["min"].append(float(present[0]))
+        out["max"].append(float(present[-1]))
+        upto = np.cumsum(hist)  # order statistic i (from 0) is the first value with upto > i
+        for q, name in zip(QUANTILES, quantiles, strict=True):
+            pos = q * (n - 1)
+            lo, frac = int(np.floor(pos)), pos - np.floor(pos)
+            v_lo = float(np.searchsorted(upto, lo, side="right"))
+            v_hi = float(np.searchsorted(upto, min(lo + 1, n - 1), side="right"))
+            quantiles[name].append(v_lo + frac * (v_hi - v_lo))
+    stats: dict[str, NDArray[Any]] = {
+        k: np.asarray(v).reshape(3, 1, 1) / 255.0 for k, v in {**out, **quantiles}.items()
     }
+    stats["count"] = np.array([samples_rgb.shape[0]], dtype=np.int64)
+    return stats
 
 
 def sample_indices(n: int) -> list[int]:
