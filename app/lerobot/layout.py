@@ -208,7 +208,7 @@ def image_stats(samples_rgb: NDArray[np.uint8]) -> dict[str, NDArray[Any]]:
         hist = np.bincount(x[:, c], minlength=256).astype(np.float64)
         mean = float(hist @ values) / n
         out["mean"].append(mean)
-        out["std"].append(float(np.sqrt(max(hist @ (values - mean) ** 2 / n, 0.0))))
+        out["std"].append(float(np.sqrt(max(float(hist @ (values - mean) ** 2) / n, 0.0))))
         present = np.flatnonzero(hist)
         out["min"].append(float(present[0]))
         out["max"].append(float(present[-1]))
