@@ -261,6 +261,11 @@ def test_bad_input_is_one_line_and_leaves_nothing(tmp_path: Path) -> None:
         assert r.stderr.strip().count("\n") == 0, r.stderr
         assert _left_behind(tmp_path, "out") == []
     assert [p.name for p in full.iterdir()] == ["something"]
+    # The same folder for a live dataset: refused before anything is opened.
+    r = dsteleop("run", "--source", "demo", "--record-lerobot", str(full))
+    assert r.returncode == 2 and "not empty" in r.stderr, r.stderr
+    assert r.stderr.strip().count("\n") == 0, r.stderr
+    assert [p.name for p in full.iterdir()] == ["something"]
 
 
 def test_a_dataset_that_is_not_ours_is_refused_by_replay(

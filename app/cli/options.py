@@ -358,6 +358,10 @@ def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOp
             "no pixels); record a webcam or a video source, or leave --record-video out"
         )
     history = check_history_path(args.history)
+    if args.record_lerobot is not None:
+        from dsteleop.app.lerobot import check_out_dir
+
+        check_out_dir(args.record_lerobot)  # before a camera or the robot is opened
     return LoopOptions(
         source=source,
         loop=loop,

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+from dsteleop.app.lerobot import check_out_dir
 from dsteleop.app.lerobot.camera import SessionFrames
 from dsteleop.app.lerobot.writer import DatasetWriter, default_task, session_fps
 from dsteleop.app.session.reader import Session, read_session, sessions_in
@@ -40,26 +41,6 @@ class Plan:
     camera: bool
     episodes: int
     ticks: int
-
-
-def check_out_dir(out: Path) -> None:
-    """`out` must not exist or be an empty folder, and its parent must be writable.
-
-    Raises:
-        InputError: it holds something, is a file, or cannot be created.
-    """
-    if out.exists():
-        if not out.is_dir():
-            raise InputError(f"output {out} exists and is not a folder")
-        if any(out.iterdir()):
-            raise InputError(f"output folder {out} is not empty; choose a new or empty folder")
-    parent = out.parent if out.parent != Path("") else Path(".")
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=parent, prefix=".dsteleop-write-test"):
-            pass
-    except OSError as exc:
-        raise InputError(f"cannot write to {parent}: {exc.strerror or exc}") from None
 
 
 def episodes_of(session: Session, which: Which) -> list[Any]:

@@ -22,8 +22,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from dsteleop.app.lerobot import check_out_dir
 from dsteleop.app.lerobot.camera import SessionFrames
-from dsteleop.app.lerobot.export import check_out_dir
 from dsteleop.app.lerobot.writer import DatasetWriter, default_task
 from dsteleop.app.session.episodes import Episode
 from dsteleop.app.session.reader import Session
