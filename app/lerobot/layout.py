@@ -3,8 +3,9 @@
 A dataset is a folder (docs/datasets.md has the mapping column by column):
 
     meta/info.json                          codebase_version "v3.0", fps, features, totals,
-                                            path templates; `dsteleop` marks our datasets
+                                            path templates (LeRobot's keys only)
     meta/stats.json                         per feature: min, max, mean, std, count, q01..q99
+    dsteleop/dataset.json                   marks a dataset dsteleop wrote (`MARK`)
     dsteleop/ticks/chunk-000/file-000.parquet  dsteleop's own: each tick's full record, what
                                             a replay of the dataset reads (LeRobot ignores it)
     meta/tasks.parquet                      task_index, with the task string as the pandas
@@ -46,8 +47,10 @@ from dsteleop.arbitration.se3 import quat_wxyz_from_matrix
 Array = NDArray[np.float64]
 
 CODEBASE_VERSION = "v3.0"
-#: The key in info.json that marks a dataset dsteleop wrote (and its layout's version).
-MARK = "dsteleop"
+#: The file that marks a dataset dsteleop wrote: its layout's version, dsteleop's version and
+#: the tick records' schema (beside LeRobot's files: LeRobot warns about keys it does not know
+#: in info.json, and drops them when it rewrites the file).
+MARK = "dsteleop/dataset.json"
 MARK_VERSION = 1
 CAMERA = "observation.images.camera"
 INFO = "meta/info.json"
@@ -368,7 +371,6 @@ def info_json(
     total_frames: int,
     total_tasks: int,
     robot_type: str,
-    dsteleop: Mapping[str, Any],
 ) -> dict[str, Any]:
     """meta/info.json."""
     has_video = any(f["dtype"] == "video" for f in feats.values())
@@ -386,5 +388,4 @@ def info_json(
         "data_path": DATA_PATH,
         "video_path": VIDEO_PATH if has_video else None,
         "features": dict(feats),
-        MARK: dict(dsteleop),
     }

@@ -71,7 +71,7 @@ def read_info(root: Path) -> dict[str, Any]:
     if not isinstance(info, dict) or info.get("codebase_version") != L.CODEBASE_VERSION:
         version = info.get("codebase_version") if isinstance(info, dict) else None
         raise InputError(f"{root}: a LeRobot dataset of version {version!r}; this reads v3.0")
-    if L.MARK not in info:
+    if not (Path(root) / L.MARK).is_file():
         raise InputError(
             f"{root}: a LeRobot dataset that dsteleop did not write: it holds no tick records "
             "to replay"

@@ -243,8 +243,9 @@ class DatasetWriter:
             self.frames,
             len(self.tasks),
             self.robot_type,
-            {"layout": L.MARK_VERSION, "version": __version__, "tick_schema": SCHEMA},
         )
+        mark = {"layout": L.MARK_VERSION, "version": __version__, "tick_schema": SCHEMA}
+        write_json_atomic(self.root / L.MARK, mark)
         write_json_atomic(self.root / L.INFO, info)
 
     def close(self) -> None:
