@@ -458,3 +458,20 @@ def test_a_killed_live_recording_keeps_its_finished_episodes(tmp_path: Path) -> 
     ds = read_dataset(out)
     assert len(ds.sessions) >= 3
     assert all(v.episode is not None and v.episode.end == "outcome" for v in ds.sessions)
+
+
+def test_a_session_of_the_first_schema_exports_and_round_trips(tmp_path: Path) -> None:
+    """Schema 1 (no reset states, outcomes without times): exported, and replayed from the
+    dataset with the session's numbers."""
+    golden = ROOT / "tests" / "golden" / "schema1-demo-DS-spoon"
+    out = tmp_path / "ds"
+    r = dsteleop("export", str(golden), "--to", "lerobot", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    assert problems(out) == []
+    (view,) = read_dataset(out).sessions
+    s = read_session(golden)
+    a = replay_session(s.of_episode(s.episodes[0]), Mode.DS)
+    b = replay_session(view, Mode.DS)
+    for name in ("alpha", "B", "U_out"):
+        np.testing.assert_allclose(getattr(a.step, name), getattr(b.step, name), rtol=0, atol=1e-9)
+    assert a.outcome == b.outcome

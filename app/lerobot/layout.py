@@ -41,6 +41,7 @@ import pyarrow.parquet as pq  # type: ignore[import-untyped]
 from numpy.typing import NDArray
 
 from dsteleop.app.session.schema import TickRecord, encode
+from dsteleop.app.session.writer import clean
 from dsteleop.arbitration import HandState
 from dsteleop.arbitration.se3 import quat_wxyz_from_matrix
 
@@ -166,7 +167,10 @@ def frame_columns(
     cols["dsteleop.t_s"] = np.array([r.t_s for r in records], dtype=np.float64)
     if camera_t_s is not None:
         cols["dsteleop.camera_t_s"] = np.asarray(camera_t_s, dtype=np.float64)
-    cols[TICK] = [json.dumps(encode(r), separators=(",", ":"), allow_nan=False) for r in records]
+    # As the session writer writes a tick (NaN as null: JSON has none).
+    cols[TICK] = [
+        json.dumps(clean(encode(r)), separators=(",", ":"), allow_nan=False) for r in records
+    ]
     frame = np.arange(n, dtype=np.int64)
     cols["timestamp"] = (frame / fps).astype(np.float32)
     cols["frame_index"] = frame

@@ -29,6 +29,7 @@ from dsteleop.app.session.episodes import Episode
 from dsteleop.app.session.reader import Session
 from dsteleop.app.session.schema import TickRecord, decode, encode
 from dsteleop.app.session.video import FRAMES, VIDEO, lower_thread_priority
+from dsteleop.app.session.writer import clean
 
 log = logging.getLogger(__name__)
 
@@ -106,7 +107,7 @@ class LiveDataset:
     ) -> None:
         # As the session's file holds them (outputs to 10 significant digits): the dataset
         # then equals an export of the session, and a replay of either gives the same.
-        ticks = tuple(decode(encode(r), r.dims) for r in ticks)
+        ticks = tuple(decode(clean(encode(r)), r.dims) for r in ticks)
         view = Session(
             folder,
             meta,

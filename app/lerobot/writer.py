@@ -32,7 +32,7 @@ from dsteleop.app.lerobot import layout as L  # noqa: N812  (the layout, named o
 from dsteleop.app.lerobot.camera import CameraEncoder, SessionFrames, frames_for_ticks, rgb
 from dsteleop.app.session.reader import Session
 from dsteleop.app.session.schema import SCHEMA
-from dsteleop.app.session.writer import write_json_atomic
+from dsteleop.app.session.writer import clean, write_json_atomic
 from dsteleop.errors import InputError
 
 
@@ -194,8 +194,8 @@ class DatasetWriter:
                 "dsteleop/outcome_reason": "" if outcome is None else outcome.reason,
                 "dsteleop/utensil": "" if ep is None else ep.utensil,
                 "dsteleop/duration_s": float(ticks[-1] - ticks[0] if ep is None else ep.duration_s),
-                "dsteleop/episode": json.dumps(None if ep is None else ep.to_dict()),
-                "dsteleop/session_meta": json.dumps(view.meta, allow_nan=False),
+                "dsteleop/episode": json.dumps(clean(None if ep is None else ep.to_dict())),
+                "dsteleop/session_meta": json.dumps(clean(view.meta), allow_nan=False),
             }
         )
         table = L.data_table(cols, feats)
