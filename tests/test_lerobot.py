@@ -217,9 +217,11 @@ def test_episodes_counted_task_and_fps(tmp_path: Path) -> None:
     out = tmp_path / "ds"
     r = dsteleop(
         "export", str(RECORDINGS / "demo-DS-spoon"), "--to", "lerobot", "--out", str(out),
-        "--task", "put the spoon away", "--fps", "30", "--episodes", "counted",
+        "--task", "put the spoon away", "--fps", "30", "--episodes", "counted", "--progress",
     )  # fmt: skip
     assert r.returncode == 0, r.stderr
+    assert "export [" in r.stderr and "ticks" in r.stderr  # the progress bar, asked for
+    assert json.loads(r.stdout)["episodes"] == 1
     assert problems(out) == []
     tasks = pq.read_table(out / layout.TASKS)
     assert tasks.column("task").to_pylist() == ["put the spoon away"]
