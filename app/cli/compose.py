@@ -64,14 +64,20 @@ class Built:
     source: SourceSpec
     video: VideoFileSource | None = None
     rerun: Any = None
+    dataset: Any = None
 
     def close(self) -> None:
-        """Close the loop (the recording, the source, the robot), then the Rerun logger."""
+        """Close the loop (the recording, the source, the robot), then the live dataset (its
+        last episodes written) and the Rerun logger."""
         try:
             self.loop.close()
         finally:
-            if self.rerun is not None:
-                self.rerun.close()
+            try:
+                if self.dataset is not None:
+                    self.dataset.close()
+            finally:
+                if self.rerun is not None:
+                    self.rerun.close()
 
 
 def resolve_source(spec: SourceSpec) -> SourceSpec:
@@ -136,6 +142,7 @@ def build(
         control_dt_s=options.loop.dt_s,  # the world keeps the loop's time
     )
     rerun: Any = None
+    dataset: Any = None
     try:
         task.reset()
         start = robot.reset(0.0).X
@@ -186,6 +193,12 @@ def build(
                 plant_meta=task.describe(),
             )
             observers = (*observers, rerun)
+        if options.record_lerobot is not None:
+            from dsteleop.app.lerobot.live import LiveDataset
+
+            dataset = LiveDataset(
+                options.record_lerobot, round(options.loop.rate_hz), camera=frames is not None
+            )
         loop = TeleopLoop(
             options.loop,
             hand,
@@ -197,11 +210,14 @@ def build(
             frame_recorder=frames,
             record_root=record_root,
             meta=meta,
+            episode_sink=None if dataset is None else dataset.put,
         )
     except BaseException:
         robot.close()
         task.close()
         if rerun is not None:
             rerun.close()
+        if dataset is not None:
+            dataset.close()
         raise
-    return Built(loop, demo, spec, video, rerun)
+    return Built(loop, demo, spec, video, rerun, dataset)

@@ -22,6 +22,7 @@ from dsteleop.errors import DsteleopError
 # name -> (module, one-line help). Add a command by adding a line here.
 COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("dsteleop.app.cli.bench", "run benchmarks and print one JSON object"),
+    "export": ("dsteleop.app.cli.export", "export sessions as a LeRobot v3.0 dataset"),
     "run": ("dsteleop.app.cli.run", "run the loop without a browser (headless or live); record"),
     "replay": ("dsteleop.app.cli.replay", "replay recorded sessions or videos headless; metrics"),
     "sim": ("dsteleop.app.cli.sim", "reproduce the paper's simulation study (S vs DS); report"),

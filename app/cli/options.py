@@ -253,6 +253,15 @@ def add_loop_options(
         help="also record the camera frames (for replay --retrack)",
     )
     parser.add_argument(
+        "--record-lerobot",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="also write the recorded episodes as a LeRobot v3.0 dataset into the new or empty "
+        "folder DIR, each as it ends (docs/datasets.md); implies --record-video for a camera "
+        "or video source",
+    )
+    parser.add_argument(
         "--loop-video",
         action="store_true",
         help="play a video source again from the start when it ends",
@@ -289,6 +298,7 @@ class LoopOptions:
         goal_noise_m: goal position noise [m] (None: the task's default).
         record: the session folder (run) or root (serve), or None.
         record_video: record the camera frames too.
+        record_lerobot: write the recorded episodes into a LeRobot dataset there, or None.
         loop_video: play a video source again when it ends.
         rotate: turn video or camera frames [deg clockwise] (None: a video's own rotation).
         allow_partial: accept a video that ends before the frames it declares.
@@ -309,6 +319,7 @@ class LoopOptions:
     goal_noise_m: float | None = None
     record: Path | None = None
     record_video: bool = False
+    record_lerobot: Path | None = None
     loop_video: bool = False
     rotate: int | None = None
     allow_partial: bool = False
@@ -357,6 +368,10 @@ def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOp
         )
     history = check_history_path(args.history)
     check_robot(args.robot)
+    if args.record_lerobot is not None:
+        from dsteleop.app.lerobot import check_out_dir
+
+        check_out_dir(args.record_lerobot)  # before a camera or the robot is opened
     return LoopOptions(
         source=source,
         loop=loop,
@@ -365,7 +380,10 @@ def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOp
         seed=args.seed,
         goal_noise_m=args.goal_noise,
         record=args.record,
-        record_video=bool(args.record_video),
+        # A dataset from a camera carries its frames: --record-lerobot records them.
+        record_video=bool(args.record_video)
+        or (args.record_lerobot is not None and source.kind != "demo"),
+        record_lerobot=args.record_lerobot,
         loop_video=bool(args.loop_video),
         rotate=check_rotation(args.rotate),
         allow_partial=bool(args.allow_partial),

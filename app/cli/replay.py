@@ -53,7 +53,7 @@ class ReplayCommand:
     """The `replay` command's settings.
 
     Attributes:
-        inputs: session folders and video files, in order.
+        inputs: session folders, video files and dsteleop-written LeRobot datasets, in order.
         modes: the modes to replay in.
         out: the output folder.
         robot: replay against a "simulated" (the session's), the "recorded" robot, or a
@@ -96,7 +96,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "inputs",
         nargs="+",
         metavar="SESSION",
-        help="session folders, folders of sessions, or video files",
+        help="session folders, folders of sessions, video files, or LeRobot datasets that "
+        "dsteleop exported (docs/datasets.md)",
     )
     parser.add_argument(
         "--modes",
@@ -140,6 +141,7 @@ def _expand(inputs: list[str]) -> tuple[Path, ...]:
     """Session folders and videos; a folder of them is opened. A folder with what a session
     holds but no meta.json is a session without its metadata: kept, so that reading it
     refuses it, never replayed as a plain video."""
+    from dsteleop.app.lerobot.reader import is_dataset
     from dsteleop.app.session.reader import sessions_in
 
     out: list[Path] = []
@@ -147,6 +149,9 @@ def _expand(inputs: list[str]) -> tuple[Path, ...]:
         p = Path(s)
         if not p.exists():
             raise InputError(f"not found: {p}")
+        if is_dataset(p):  # a LeRobot dataset dsteleop wrote: its episodes replay
+            out.append(p)
+            continue
         subs = sessions_in(p)
         if p.is_dir() and subs != [p]:
             vids = sorted(q for q in p.iterdir() if q.suffix.lower() in VIDEO_SUFFIXES)
@@ -244,6 +249,8 @@ def _work(unit: Unit) -> list[Any]:
 
     path_s, index, mode_names, cmd, parts_s = unit
     path = Path(path_s)
+    from dsteleop.app.lerobot.reader import is_dataset, read_dataset
+
     parts = None if parts_s is None else Path(parts_s)
     modes = [Mode.parse(m) for m in mode_names]
     # What the modes of a run share (camera, true goals, layout) goes with the first mode.
@@ -265,7 +272,12 @@ def _work(unit: Unit) -> list[Any]:
             robot="iiwa" if cmd.robot in ("simulated", "recorded") else cmd.robot,
         )
         return [core.Run(path.name, path.name, None, recorded_s, tr) for tr in traces]
-    session = read_session(path, warn_truncated=False)  # `run` read it first, and said so
+    if is_dataset(path):  # one episode of a dataset: a session's view of it
+        assert index is not None
+        session = read_dataset(path).sessions[index]
+        index = 0
+    else:
+        session = read_session(path, warn_truncated=False)  # `run` read it first, said so
     if cmd.arbitration is not None:
         loop = {**session.meta.get("loop", {}), "arbitration": cmd.arbitration.to_dict()}
         session = dataclasses.replace(session, meta={**session.meta, "loop": loop})
@@ -276,7 +288,7 @@ def _work(unit: Unit) -> list[Any]:
         from dsteleop.app.replay.video import replay_retracked
 
         return [
-            core.Run(session.of_episode(ep).name, session.name, ep, tr.recorded_s, tr)
+            core.Run(session.of_episode(ep).name, session.folder.name, ep, tr.recorded_s, tr)
             for ep, tr in replay_retracked(session, modes, cmd.allow_partial, sink_for)
         ]
     assert index is not None
@@ -308,7 +320,7 @@ def _work(unit: Unit) -> list[Any]:
             )
             for m in modes
         ]
-    return [core.Run(view.name, session.name, episode, tr.recorded_s, tr) for tr in traces]
+    return [core.Run(view.name, session.folder.name, episode, tr.recorded_s, tr) for tr in traces]
 
 
 def run(args: argparse.Namespace) -> int:
@@ -318,9 +330,18 @@ def run(args: argparse.Namespace) -> int:
 
     out = prepare_out_dir(cmd.out)
     # Validate every input before the long work starts; a session's episodes are the units.
+    from dsteleop.app.lerobot.reader import is_dataset, read_dataset
+
     episodes: dict[Path, int] = {}
     for p in cmd.inputs:
-        if p.suffix.lower() not in VIDEO_SUFFIXES:
+        if is_dataset(p):
+            if cmd.retrack:
+                raise ConfigError(
+                    f"--retrack: {p} is a dataset; its camera video is re-encoded per tick, "
+                    "re-track the sessions it was exported from"
+                )
+            episodes[p] = len(read_dataset(p).sessions)
+        elif p.suffix.lower() not in VIDEO_SUFFIXES:
             episodes[p] = len(read_session(p).episodes)
     t0 = time.perf_counter()
     # Work units: an episode of a recorded session replays once per mode, each mode its own

@@ -81,11 +81,19 @@ def run(args: argparse.Namespace) -> int:
     loop = built.loop
     max_ticks = int(cmd.max_seconds * opts.loop.rate_hz)
     t0 = time.perf_counter()
+    session = None
     ended = ""  # why the hand's source ended, read before closing it (which ends any source)
     with StopOnSignal(loop, (signal.SIGTERM,)) as stopper:
         try:
-            if opts.record is not None:
-                loop.start_recording(opts.record, {"command": "run", "argv": sys.argv[1:]})
+            session = opts.record
+            if session is None and opts.record_lerobot is not None:
+                from dsteleop.app.lerobot.live import SESSIONS
+                from dsteleop.app.session.writer import new_session_folder
+
+                root = opts.record_lerobot / SESSIONS
+                session = new_session_folder(root, loop.mode.value, opts.utensil)
+            if session is not None:
+                loop.start_recording(session, {"command": "run", "argv": sys.argv[1:]})
             if cmd.realtime:
                 loop.run(max_ticks=max_ticks, until_outcome=True, until_finished=True)
             else:
@@ -116,11 +124,13 @@ def run(args: argparse.Namespace) -> int:
         "seed": opts.seed,
         "source": built.source.kind,
         "events": [f"{k}:{e}" for k, e in loop.events_log],
-        "session": None if opts.record is None else str(opts.record),
+        "session": None if session is None else str(session),
         "timing": timing,
     }
     if built.rerun is not None:
         summary["rerun"] = built.rerun.summary()
+    if built.dataset is not None:
+        summary["lerobot"] = built.dataset.summary()
     json.dump(summary, sys.stdout)
     sys.stdout.write("\n")
     return 0

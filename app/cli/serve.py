@@ -136,6 +136,10 @@ def run(args: argparse.Namespace) -> int:
     check_port_free(cmd.host, cmd.port)  # before the camera is opened
     raise_priority()  # the loop ahead of other work on the machine (a local browser)
     root = opts.record or default_record_root()
+    if opts.record is None and opts.record_lerobot is not None:
+        from dsteleop.app.lerobot.live import SESSIONS
+
+        root = opts.record_lerobot / SESSIONS  # the sessions behind the dataset
     built = build(opts, realtime=True, export_scene=True, record_root=root)
     loop, spec = built.loop, built.source
     viewer = None
@@ -157,9 +161,9 @@ def run(args: argparse.Namespace) -> int:
                 mapping=hand_mapping(loop.hand.mapping_config()),
                 info={"world": DemoConfig().describe()} if spec.kind == "demo" else None,
             )
-            if opts.record is not None:
+            if opts.record is not None or opts.record_lerobot is not None:
                 utensil = str(loop.task.describe().get("utensil", "task"))
-                loop.start_recording(new_session_folder(opts.record, loop.mode.value, utensil))
+                loop.start_recording(new_session_folder(root, loop.mode.value, utensil))
             viewer.start()
             sys.stderr.write(
                 f"dsteleop serve: open {viewer.url} in a browser "
@@ -182,6 +186,8 @@ def run(args: argparse.Namespace) -> int:
     }
     if built.rerun is not None:
         summary["rerun"] = built.rerun.summary()
+    if built.dataset is not None:
+        summary["lerobot"] = built.dataset.summary()
     if built.video is not None:
         summary["video"] = built.video.end_note() if built.video.ended else "playing"
     sys.stdout.write(json.dumps(summary) + "\n")

@@ -61,7 +61,13 @@ from dsteleop.app.ports import (
 from dsteleop.app.session.episodes import EpisodeSplitter
 from dsteleop.app.session.schema import RecordingStatus, TickRecord, encode_event
 from dsteleop.app.session.video import FrameRecorder
-from dsteleop.app.session.writer import HistoryFile, Recorder, SessionWriter, new_session_folder
+from dsteleop.app.session.writer import (
+    EpisodeSink,
+    HistoryFile,
+    Recorder,
+    SessionWriter,
+    new_session_folder,
+)
 from dsteleop.arbitration import HandState, Mode, OperatorHistory, dim_names, make_arbiter
 from dsteleop.arbitration.arbiters import compile_kernels
 from dsteleop.errors import DsteleopError
@@ -86,6 +92,8 @@ class TeleopLoop:
         frame_recorder: records the camera frames of a session beside it, if any.
         record_root: where a recording requested through `controls` is written.
         meta: extra metadata for recordings (source description, seeds, ...).
+        episode_sink: gets every recorded episode once its ticks are written (e.g. a live
+            LeRobot dataset, `--record-lerobot`).
     """
 
     def __init__(
@@ -102,8 +110,10 @@ class TeleopLoop:
         frame_recorder: FrameRecorder | None = None,
         record_root: Path | None = None,
         meta: dict[str, Any] | None = None,
+        episode_sink: EpisodeSink | None = None,
     ) -> None:
         self.config = config
+        self._episode_sink = episode_sink
         self.hand = hand
         self.robot = robot
         self.task = task
@@ -275,7 +285,7 @@ class TeleopLoop:
             "started_at": datetime.datetime.now(datetime.timezone.utc).isoformat(),
             **(extra or {}),
         }
-        self._recorder = Recorder(SessionWriter(folder, meta))
+        self._recorder = Recorder(SessionWriter(folder, meta), self._episode_sink)
         self.recordings.append(Path(folder))
         self._episodes = EpisodeSplitter()
         self._recording_t0 = None

@@ -31,6 +31,7 @@ import os
 import queue
 import tempfile
 import threading
+from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any
 
@@ -162,17 +163,30 @@ class SessionWriter:
         self.close()
 
 
+#: Gets each episode once its ticks are written: the session's folder and metadata, the
+#: episode, and its tick records (e.g. `lerobot.live.LiveDataset.put`). Called on the
+#: recorder's thread.
+EpisodeSink = Callable[[Path, dict[str, Any], Episode, tuple[TickRecord, ...]], None]
+
+
 class Recorder:
     """Encodes and writes tick records, and the episodes as they end, on its own thread
     (module docstring), in the order they were put.
+
+    Args:
+        writer: the session's writer.
+        on_episode: also hands each ended episode, with its ticks, to this sink.
 
     Attributes:
         lines: records put so far (the line number the next one gets).
         episodes: episodes put so far.
     """
 
-    def __init__(self, writer: SessionWriter) -> None:
+    def __init__(self, writer: SessionWriter, on_episode: EpisodeSink | None = None) -> None:
         self.writer = writer
+        self._on_episode = on_episode
+        self._pending: list[TickRecord] = []  # the ticks since the last episode ended
+        self._first = 0  # the line number of _pending[0]
         self._q: queue.SimpleQueue[TickRecord | Episode | None] = queue.SimpleQueue()
         self._thread = threading.Thread(target=self._run, name="dsteleop-recorder", daemon=True)
         self._thread.start()
@@ -196,8 +210,16 @@ class Recorder:
         while (item := self._q.get()) is not None:
             if isinstance(item, Episode):
                 self.writer.add_episode(item.to_dict())
+                if self._on_episode is not None:
+                    lo, hi = item.first - self._first, item.last + 1 - self._first
+                    ticks = tuple(self._pending[max(lo, 0) : hi])
+                    self._pending = self._pending[hi:]
+                    self._first = item.last + 1
+                    self._on_episode(self.writer.folder, self.writer.meta, item, ticks)
             else:
                 self.writer.write_tick(encode(item))
+                if self._on_episode is not None:
+                    self._pending.append(item)
 
     def close(self, extra_meta: dict[str, Any]) -> None:
         """Write what is queued, then close the session with `extra_meta`."""

@@ -1,0 +1,276 @@
+"""Writing LeRobot v3.0 datasets from sessions (`dsteleop export`) and live (`--record-lerobot`).
+
+`DatasetWriter` takes episodes one at a time (a session's view of one episode, its task and
+its camera frames). Two ways of filing them:
+
+    export (`one_file=True`)   every episode back to back in file-000 of data, video and
+                               episode table, written at `close`; the command writes into a
+                               hidden staging folder and renames it into place at the end, so
+                               an interrupted export leaves nothing that looks like a dataset.
+    live   (`one_file=False`)  each episode its own files (file index = episode index, 1000
+                               to a chunk, as the format allows), written when it ends: video,
+                               data and episode table under temporary names, renamed, then
+                               tasks, stats and info.json atomically last. A crash loses the
+                               episode in progress; the ones finished stay a valid dataset
+                               (info.json names only episodes whose files are complete).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa  # type: ignore[import-untyped]
+
+from dsteleop import __version__
+from dsteleop.app.lerobot import layout as L  # noqa: N812  (the layout, named once)
+from dsteleop.app.lerobot.camera import CameraEncoder, SessionFrames, frames_for_ticks, rgb
+from dsteleop.app.session.reader import Session
+from dsteleop.app.session.schema import SCHEMA
+from dsteleop.app.session.writer import clean, write_json_atomic
+from dsteleop.errors import InputError
+
+
+def default_task(utensil: str) -> str:
+    """The task string of an episode when the user gives none."""
+    return f"pick up the {utensil or 'utensil'} and put it in the bin"
+
+
+def session_fps(session: Session) -> float:
+    """The session's control rate [Hz] (one tick is one frame)."""
+    return float(session.meta.get("loop", {}).get("rate_hz", 30.0))
+
+
+def _atomic_path(path: Path) -> Path:
+    """A temporary name beside `path` that no reader of the layout matches."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    os.chmod(tmp, 0o644)  # as any file written plainly (mkstemp makes it private)
+    return Path(tmp)
+
+
+class DatasetWriter:
+    """Episodes into a LeRobot v3.0 dataset (module docstring).
+
+    Args:
+        root: the dataset folder (created).
+        fps: frames per second, the sessions' control rate.
+        dims: the dimension names of every session.
+        camera: the episodes come with camera frames (all of them, or none).
+        one_file: export (everything in file-000, written at `close`) or live (a file per
+            episode, written as it comes).
+        robot_type: info.json's `robot_type`.
+        codec: the camera's codec, "av1" or "h264" (`camera.CameraEncoder`).
+    """
+
+    def __init__(
+        self,
+        root: Path,
+        fps: int,
+        dims: Sequence[str],
+        camera: bool,
+        one_file: bool,
+        robot_type: str = "dsteleop_kitchen_pybullet",
+        codec: str = "av1",
+    ) -> None:
+        self.codec = codec
+        self.root = Path(root)
+        self.fps = fps
+        self.dims = tuple(dims)
+        self.camera = camera
+        self.one_file = one_file
+        self.robot_type = robot_type
+        self.tasks: list[str] = []
+        self.episodes: list[dict[str, Any]] = []
+        self.stats: list[dict[str, Any]] = []
+        self.frames = 0
+        self._tables: list[pa.Table] = []
+        self._ticks: list[pa.Table] = []
+        self._encoder: CameraEncoder | None = None
+        self._camera_info: dict[str, Any] | None = None
+        self._video_t = 0.0
+
+    def _features(self) -> dict[str, Any]:
+        return L.features(self.dims, self._camera_info if self.camera else None)
+
+    def _open_encoder(self, file_index: int, width: int, height: int) -> CameraEncoder:
+        final = self.root / L.rel(L.VIDEO_PATH, file_index, L.CAMERA)
+        path = final if self.one_file else _atomic_path(final)
+        final.parent.mkdir(parents=True, exist_ok=True)
+        if self._camera_info is not None:  # every episode's video the size of the first
+            width, height = self._camera_info["video.width"], self._camera_info["video.height"]
+        enc = CameraEncoder(path, self.fps, width, height, self.codec)
+        if self._camera_info is None:
+            self._camera_info = enc.info()
+        return enc
+
+    def add(self, view: Session, task: str, frames: SessionFrames | None) -> int:
+        """Write (live) or stage (export) one episode: `view` is a session's view of it.
+
+        Returns:
+            its episode index in the dataset.
+
+        Raises:
+            InputError: the episode does not fit the dataset (dimensions, camera, rate).
+        """
+        records = view.records
+        if not records:
+            raise InputError(f"{view.name}: an episode without ticks")
+        if tuple(view.dims) != self.dims:
+            raise InputError(
+                f"{view.name}: dimensions {','.join(view.dims)} differ from the dataset's "
+                f"({','.join(self.dims)}); export such sessions into separate datasets"
+            )
+        if self.camera and frames is None:
+            raise InputError(
+                f"{view.name}: no camera video, but the dataset has a camera; export sessions "
+                "with and without --record-video into separate datasets"
+            )
+        e = len(self.episodes)
+        f = 0 if self.one_file else e
+        if task not in self.tasks:
+            self.tasks.append(task)
+        ticks = [r.t_s for r in records]
+        camera_t: list[float] | None = None
+        samples: list[Any] = []
+        if self.camera and frames is not None:
+            if self._encoder is None or not self.one_file:
+                self._encoder = self._open_encoder(f, frames.width, frames.height)
+            enc = self._encoder
+            idx = frames_for_ticks(frames.times, ticks)
+            camera_t = [frames.times[i] for i in idx]
+            wanted = set(L.sample_indices(len(records)))
+            for k, i in enumerate(idx):
+                frame = frames.frame(i)
+                enc.write(frame)
+                if k in wanted:
+                    samples.append(rgb(frame))
+        cols = L.frame_columns(records, self.fps, e, self.frames, self.tasks.index(task), camera_t)
+        feats = self._features()
+        stats = {
+            k: L.feature_stats(cols[k])
+            for k, ft in feats.items()
+            if ft["dtype"] not in ("video", "string")
+        }
+        n = len(records)
+        row: dict[str, Any] = {
+            "episode_index": e,
+            "tasks": [task],
+            "length": n,
+            "data/chunk_index": f // L.CHUNKS_SIZE,
+            "data/file_index": f % L.CHUNKS_SIZE,
+            "dataset_from_index": self.frames,
+            "dataset_to_index": self.frames + n,
+        }
+        if self.camera:
+            stats[L.CAMERA] = L.image_stats(np.stack(samples))
+            t0 = self._video_t if self.one_file else 0.0
+            row[f"videos/{L.CAMERA}/chunk_index"] = f // L.CHUNKS_SIZE
+            row[f"videos/{L.CAMERA}/file_index"] = f % L.CHUNKS_SIZE
+            row[f"videos/{L.CAMERA}/from_timestamp"] = t0
+            row[f"videos/{L.CAMERA}/to_timestamp"] = t0 + n / self.fps
+            self._video_t = t0 + n / self.fps
+        row["meta/episodes/chunk_index"] = f // L.CHUNKS_SIZE
+        row["meta/episodes/file_index"] = f % L.CHUNKS_SIZE
+        row.update(L.flat_stats(stats))
+        ep = view.episode
+        outcome = None if ep is None else ep.outcome
+        row.update(
+            {
+                "dsteleop/session": view.folder.name,
+                "dsteleop/session_episode": -1 if ep is None else ep.index,
+                "dsteleop/mode": view.records[0].mode.value if ep is None else ep.mode,
+                "dsteleop/end": "" if ep is None else ep.end,
+                "dsteleop/counted": bool(ep is not None and ep.counted),
+                "dsteleop/outcome": "none"
+                if outcome is None
+                else ("success" if outcome.success else "failure"),
+                "dsteleop/outcome_reason": "" if outcome is None else outcome.reason,
+                "dsteleop/utensil": "" if ep is None else ep.utensil,
+                "dsteleop/duration_s": float(ticks[-1] - ticks[0] if ep is None else ep.duration_s),
+                "dsteleop/episode": json.dumps(clean(None if ep is None else ep.to_dict())),
+                "dsteleop/session_meta": json.dumps(clean(view.meta), allow_nan=False),
+            }
+        )
+        table = L.data_table(cols, feats)
+        ticks_table = L.ticks_table(cols)
+        self.episodes.append(row)
+        self.stats.append(stats)
+        self.frames += n
+        if self.one_file:
+            self._tables.append(table)
+            self._ticks.append(ticks_table)
+        else:
+            self._commit_episode(table, ticks_table, row, f)
+        return e
+
+    def _commit_episode(
+        self, table: pa.Table, ticks: pa.Table, row: dict[str, Any], f: int
+    ) -> None:
+        """Live: the episode's files under temporary names, renamed, then the metadata."""
+        if self._encoder is not None:
+            self._encoder.close()
+            os.replace(self._encoder.path, self.root / L.rel(L.VIDEO_PATH, f, L.CAMERA))
+            self._encoder = None
+        for template, t in (
+            (L.TICKS_PATH, ticks),
+            (L.DATA_PATH, table),
+            (L.EPISODES_PATH, pa.Table.from_pylist([row])),
+        ):
+            path = self.root / L.rel(template, f)
+            tmp = _atomic_path(path)
+            L.write_parquet(t, tmp)
+            os.replace(tmp, path)
+        self._write_meta()
+
+    def _write_meta(self) -> None:
+        """tasks.parquet, stats.json, then info.json (each replaced atomically)."""
+        tasks = self.root / L.TASKS
+        tmp = _atomic_path(tasks)
+        L.write_parquet(L.tasks_table(self.tasks), tmp)
+        os.replace(tmp, tasks)
+        write_json_atomic(self.root / L.STATS, L.stats_json(L.aggregate_stats(self.stats)))
+        info = L.info_json(
+            self.fps,
+            self._features(),
+            len(self.episodes),
+            self.frames,
+            len(self.tasks),
+            self.robot_type,
+        )
+        mark = {"layout": L.MARK_VERSION, "version": __version__, "tick_schema": SCHEMA}
+        write_json_atomic(self.root / L.MARK, mark)
+        write_json_atomic(self.root / L.INFO, info)
+
+    def close(self) -> None:
+        """Export: write everything staged (data, video, episode table, then the metadata).
+
+        Raises:
+            InputError: there was no episode to write.
+        """
+        if not self.one_file:
+            if self._encoder is not None:  # an episode that never finished
+                self._encoder.close()
+                self._encoder.path.unlink(missing_ok=True)
+                self._encoder = None
+            return
+        if not self.episodes:
+            raise InputError("no episode to export")
+        if self._encoder is not None:
+            self._encoder.close()
+            self._encoder = None
+        lengths = [int(r["length"]) for r in self.episodes]
+        for template, tables in ((L.DATA_PATH, self._tables), (L.TICKS_PATH, self._ticks)):
+            path = self.root / L.rel(template, 0)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            L.write_parquet(pa.concat_tables(tables), path, lengths)
+        eps = self.root / L.rel(L.EPISODES_PATH, 0)
+        eps.parent.mkdir(parents=True, exist_ok=True)
+        L.write_parquet(pa.Table.from_pylist(self.episodes), eps)
+        self._write_meta()
