@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from dsteleop.app.session.video import EncodedVideo
 from dsteleop.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -88,7 +89,7 @@ class SessionFrames:
         self._in.close()
 
 
-class CameraEncoder:
+class CameraEncoder(EncodedVideo):
     """Writes the dataset's camera video: frames in, one per tick (module docstring).
 
     Args:
@@ -129,22 +130,8 @@ class CameraEncoder:
             frame = frame.reformat(self.width, self.height, self.settings["pix_fmt"])
         # The encoder takes a reference to the frame as it is sent: a frame repeated for the
         # next tick is sent again with its next stamp.
-        frame.pts = self.frames
         frame.time_base = Fraction(1, self.fps)
-        for packet in self._stream.encode(frame):
-            self._out.mux(packet)
-        self.frames += 1
-
-    def close(self) -> None:
-        """Drain the encoder and finish the file (idempotent)."""
-        if self._out is None:
-            return
-        try:
-            for packet in self._stream.encode(None):
-                self._out.mux(packet)
-        finally:
-            self._out.close()
-            self._out = None
+        self._encode(frame)
 
     def info(self) -> dict[str, Any]:
         """The `info` block of the camera's feature in info.json (LeRobot's `get_video_info`

@@ -61,7 +61,35 @@ def lower_thread_priority(niceness: int = WRITER_NICENESS) -> None:
         pass
 
 
-class Mp4Writer:
+class EncodedVideo:
+    """One video stream in an open container: frames are stamped with their index, encoded
+    and muxed; `close` drains the encoder and finishes the file. Subclasses open `_out` and
+    `_stream` and set `frames = 0`."""
+
+    _out: Any
+    _stream: Any
+    frames: int
+
+    def _encode(self, frame: Any) -> None:
+        """Stamp `frame` (an av.VideoFrame) as the next frame, encode it, mux its packets."""
+        frame.pts = self.frames
+        for packet in self._stream.encode(frame):
+            self._out.mux(packet)
+        self.frames += 1
+
+    def close(self) -> None:
+        """Drain the encoder and finish the file (idempotent)."""
+        if self._out is None:
+            return
+        try:
+            for packet in self._stream.encode(None):
+                self._out.mux(packet)
+        finally:
+            self._out.close()
+            self._out = None
+
+
+class Mp4Writer(EncodedVideo):
     """BGR frames to a fragmented, crash-safe MP4 (module docstring).
 
     H.264 (libx264, `ultrafast`, `zerolatency`: no frame is held back in the encoder) at
@@ -112,22 +140,7 @@ class Mp4Writer:
     def write(self, image_bgr: NDArray[np.uint8]) -> None:
         """Append one frame (H x W x 3, BGR; the size given at construction)."""
         image = image_bgr[: self.height_px, : self.width_px]
-        frame = self._av.VideoFrame.from_ndarray(np.ascontiguousarray(image), format="bgr24")
-        frame.pts = self.frames
-        for packet in self._stream.encode(frame):
-            self._out.mux(packet)
-        self.frames += 1
-
-    def close(self) -> None:
-        """Drain the encoder and finish the file (idempotent)."""
-        if self._out is None:
-            return
-        try:
-            for packet in self._stream.encode(None):
-                self._out.mux(packet)
-        finally:
-            self._out.close()
-            self._out = None
+        self._encode(self._av.VideoFrame.from_ndarray(np.ascontiguousarray(image), format="bgr24"))
 
 
 class FrameRecorder:
