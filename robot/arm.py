@@ -142,7 +142,8 @@ class RobotConfig:
         helper_max_force_n: strength of the helper constraint [N].
         squeeze_share: a finger touching a graspable body closes at most this share of each
             joint's open-to-closed travel past the positions where it met it (module
-            docstring: contact stall; the iiwa hand's joints travel 1 rad: 0.3 rad).
+            docstring: contact stall; the iiwa hand's joints travel 1 rad: 0.3 rad), unless
+            its description gives its own (the Panda's gripper).
         stall_lead_share: a finger counts as closing (for the contact stall) when its
             command is this share of the travel more closed than its joints; a contact can
             push an open finger against its open stop by a hundredth of its travel, which
@@ -354,6 +355,14 @@ class Robot:
         self._q_open = np.array([j.open for j in fjoints])
         self._q_closed = np.array([j.closed for j in fjoints])
         self._travel = np.abs(self._q_open - self._q_closed)
+        #: per finger joint: how far it may close past where it met a held body [rad or m]
+        self._squeeze = self._travel * np.array(
+            [
+                config.squeeze_share if f.squeeze_share is None else f.squeeze_share
+                for f in desc.fingers
+                for _ in f.joints
+            ]
+        )
         self._sense = np.sign(self._q_closed - self._q_open)  # +1 where closing raises q
         self._stall_q = np.full(len(fjoints), np.nan)  # per finger joint, NaN = free
         self._t_s = 0.0
@@ -385,7 +394,7 @@ class Robot:
                 self._body,
                 li,
                 lateralFriction=FINGER_FRICTION,
-                spinningFriction=0.002,
+                spinningFriction=desc.spinning_friction,
                 frictionAnchor=True,
                 contactStiffness=config.pad_stiffness_n_per_m,
                 contactDamping=config.pad_damping_n_s_per_m,
@@ -482,7 +491,7 @@ class Robot:
         q_f = self._finger_q(self._openness_cmd)
         # Contact stall: a finger stops where it met the object (plus a squeeze) instead of
         # driving its pad into it; NaN entries (free fingers) leave the command as it is.
-        limit = self._stall_q + self._sense * self._travel * self.config.squeeze_share
+        limit = self._stall_q + self._sense * self._squeeze
         q_f = np.where(self._sense * (q_f - limit) > 0.0, limit, q_f)
         pb.setJointMotorControlArray(
             self._body,

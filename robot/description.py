@@ -44,6 +44,12 @@ DEFAULT_ROBOT = "iiwa"
 #: The human fingers a robot finger may follow (tracking.landmarks.FINGER_NAMES).
 HUMAN_FINGERS = ("thumb", "index", "middle", "ring", "little")
 PYBULLET_DATA = "pybullet_data:"
+#: Where the task's grasp goal puts a grasp frame by default: 12 mm above the grip's top end
+#: (`grip.depth_m`, negative: above), with the grasp frame at the palm origin: the iiwa's
+#: four-finger hand, whose fingers wrap the grip from above.
+DEFAULT_GRASP_DEPTH_M = -0.012
+#: The finger links' torsional (spinning) friction by default (`grip.spinning_friction`).
+DEFAULT_SPINNING_FRICTION = 0.002
 
 
 @dataclass(frozen=True)
@@ -73,12 +79,16 @@ class Finger:
         joints: its joints; openness g sets each to closed + g (open - closed).
         force: motor effort limit of each of its joints [N m, or N for prismatic joints].
         human: the human fingers whose mean openness it follows (the mapping).
+        squeeze_share: once it holds a body, each joint closes at most this share of its
+            open-to-closed travel past where it met it (the contact stall, `robot.arm`);
+            None: the robot config's (`RobotConfig.squeeze_share`).
     """
 
     name: str
     joints: tuple[FingerJoint, ...]
     force: float
     human: tuple[str, ...]
+    squeeze_share: float | None = None
 
 
 @dataclass(frozen=True)
@@ -122,6 +132,12 @@ class RobotDescription:
         palm_rpy_rad: its orientation [rad].
         fingers: the openness dimensions, in order.
         opposing: the contact group that opposes the others (a clamp needs it and another).
+        grasp_xyz_m: the grasp frame (the tool centre point: where the fingers close, e.g.
+            between a gripper's pads) in the palm frame [m]; same orientation as the palm.
+        grasp_depth_m: how far below the grip's top end the task's grasp goal puts the
+            grasp frame, along the handle [m] (negative: above it).
+        spinning_friction: the finger links' torsional friction (PyBullet's
+            `spinningFriction`, resisting a held body's turning about the contact normal).
         home_position_m: palm position at a reset, base frame [m].
         home_rotvec_rad: palm orientation at a reset, rotation vector [rad].
         workspace_min_m: lower corner of the box palm targets are clamped into [m].
@@ -156,6 +172,9 @@ class RobotDescription:
     max_speed_m_s: float
     max_rate_rad_s: float
     max_finger_rate_per_s: float
+    grasp_xyz_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    grasp_depth_m: float = DEFAULT_GRASP_DEPTH_M
+    spinning_friction: float = DEFAULT_SPINNING_FRICTION
     text: str = ""
 
     @property
@@ -356,12 +375,22 @@ def _parse(data: Any, path: Path) -> RobotDescription:
         bad = [h for h in human if h not in HUMAN_FINGERS]
         if bad:
             raise t.fail("human", f"names no human finger: {bad} (of {', '.join(HUMAN_FINGERS)})")
-        fingers.append(Finger(name, tuple(joints), t.num("force", positive=True), human))
+        squeeze = t.num("squeeze_share", positive=True) if t.has("squeeze_share") else None
+        if squeeze is not None and squeeze > 1:
+            raise t.fail("squeeze_share", f"must be at most 1, got {squeeze!r}")
+        force = t.num("force", positive=True)
+        fingers.append(Finger(name, tuple(joints), force, human, squeeze))
     names = [x.name for x in fingers]
     if len(set(names)) != len(names):
         raise f.fail("fingers", f"has a name twice: {names}")
     grip = f.table("grip")
     opposing = grip.text("opposing")
+    grasp_depth_m = grip.num("depth_m") if grip.has("depth_m") else DEFAULT_GRASP_DEPTH_M
+    spinning = DEFAULT_SPINNING_FRICTION
+    if grip.has("spinning_friction"):
+        spinning = grip.num("spinning_friction")
+        if spinning < 0:
+            raise grip.fail("spinning_friction", f"must be >= 0, got {spinning!r}")
     groups = {j.group for x in fingers for j in x.joints}
     if opposing not in groups or len(groups) < 2:
         raise grip.fail(
@@ -395,6 +424,9 @@ def _parse(data: Any, path: Path) -> RobotDescription:
         max_speed_m_s=lim.num("max_speed_m_s", positive=True),
         max_rate_rad_s=lim.num("max_rate_rad_s", positive=True),
         max_finger_rate_per_s=lim.num("max_finger_rate_per_s", positive=True),
+        grasp_xyz_m=grip.vec3("tcp_xyz_m", (0.0, 0.0, 0.0)),
+        grasp_depth_m=grasp_depth_m,
+        spinning_friction=spinning,
     )
     if not all(a <= b <= c for a, b, c in zip(lo, desc.home_position_m, hi, strict=True)):
         raise home.fail("position_m", "must lie inside the workspace box")

@@ -286,7 +286,8 @@ class KitchenEnv:
 
     def _grasp_pose(self, name: str) -> tuple[Array, Array]:
         p_u, R_u = self.utensil_pose(name)
-        p_g, R_g = T_utensil_grasp(UTENSILS[name])
+        desc = self.config.description
+        p_g, R_g = T_utensil_grasp(UTENSILS[name], desc.grasp_xyz_m, desc.grasp_depth_m)
         return p_u + R_u @ p_g, R_u @ R_g
 
     def grasp_pose(self) -> tuple[Array, Array]:

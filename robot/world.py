@@ -18,6 +18,7 @@ a viewer can draw them from `getBasePositionAndOrientation` alone.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -43,7 +44,6 @@ HOLDER_PLATE_M = 0.01
 HOLDER_HALF_M = (0.12, 0.05)
 UTENSIL_LENGTH_M = 0.28
 UTENSIL_LEAN_RAD = 0.10  # initial backward lean (top towards +y); physics settles it
-GRASP_CLEARANCE_M = 0.012  # palm origin above the grip's top end
 
 # Contact parameters (PyBullet changeDynamics). Fingers and grips: rubbery, high friction.
 UTENSIL_FRICTION = 1.0
@@ -136,16 +136,22 @@ UTENSILS: dict[str, UtensilSpec] = {
 UTENSIL_NAMES: tuple[str, ...] = tuple(UTENSILS)
 
 
-def T_utensil_grasp(spec: UtensilSpec) -> tuple[Array, Array]:
+def T_utensil_grasp(
+    spec: UtensilSpec, grasp_xyz_m: Sequence[float], grasp_depth_m: float
+) -> tuple[Array, Array]:
     """The palm pose for grasping `spec`, in its centre-of-mass frame: (p [m], R).
 
-    The palm sits `GRASP_CLEARANCE_M` above the grip's top end, pointing down the handle
-    (palm z = -utensil z), its finger row along the grip's wide side (palm x = -utensil x,
-    palm y = utensil y: the arm's natural wrist posture when the utensil stands upright), so
-    the fingers and the thumb close on the grip's thin sides.
+    The robot's grasp frame (its tool centre point, `grasp_xyz_m` in the palm frame) sits
+    on the grip's axis `grasp_depth_m` below the grip's top end (negative: above it), the
+    palm pointing down the handle (palm z = -utensil z), its finger row along the grip's
+    wide side (palm x = -utensil x, palm y = utensil y: the arm's natural wrist posture when
+    the utensil stands upright), so the fingers (or a gripper's jaws) close on the grip's
+    thin sides. The iiwa's hand: the grasp frame is the palm, 12 mm above the top; the
+    Panda's: between its pads, inside the grip (docs/robots.md).
     """
-    p = np.array([0.0, 0.0, UTENSIL_LENGTH_M + GRASP_CLEARANCE_M]) - spec.com_m()
     R = np.diag([-1.0, 1.0, -1.0])
+    p_grasp = np.array([0.0, 0.0, UTENSIL_LENGTH_M - grasp_depth_m])
+    p = p_grasp - R @ np.asarray(grasp_xyz_m, dtype=np.float64) - spec.com_m()
     return p, R
 
 
