@@ -18,10 +18,16 @@ phase, events and outcome from `robot.task`, and the scene poses of `robot.scene
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
+import numpy as np
+from numpy.typing import NDArray
+
 from dsteleop.arbitration import HandState
+from dsteleop.arbitration.se3 import diff, integrate, saturate
+from dsteleop.errors import ConfigError
 from dsteleop.robot.scene import SceneGeometry, ScenePoses
 from dsteleop.robot.task import EventKind, Outcome, Phase, TaskEvent
 from dsteleop.tracking.types import HandSample
@@ -147,6 +153,112 @@ class Plant(Protocol):
     def scene(self) -> SceneGeometry | None:
         """The static scene description a viewer draws, or None."""
         ...
+
+    def close(self) -> None: ...
+
+
+@dataclass(frozen=True)
+class RobotLimits:
+    """What a robot may be commanded: a palm position box and speed limits.
+
+    Attributes:
+        workspace_min_m: lower corner of the palm position box, robot base frame [m].
+        workspace_max_m: upper corner of the box [m].
+        max_speed_m_s: palm linear speed limit [m/s].
+        max_rate_rad_s: palm angular speed limit [rad/s].
+        max_finger_rate_per_s: finger openness change limit [1/s].
+    """
+
+    workspace_min_m: tuple[float, float, float]
+    workspace_max_m: tuple[float, float, float]
+    max_speed_m_s: float
+    max_rate_rad_s: float
+    max_finger_rate_per_s: float
+
+    def __post_init__(self) -> None:
+        lo, hi = self.workspace_min_m, self.workspace_max_m
+        if len(lo) != 3 or len(hi) != 3 or not all(math.isfinite(v) for v in (*lo, *hi)):
+            raise ConfigError("robot limits: the workspace corners must be 3 finite numbers")
+        if any(a >= b for a, b in zip(lo, hi, strict=True)):
+            raise ConfigError(f"robot limits: workspace_min_m {lo} must be below max {hi}")
+        for name in ("max_speed_m_s", "max_rate_rad_s", "max_finger_rate_per_s"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ConfigError(f"robot limits: {name} must be finite and > 0, got {v!r}")
+
+    def clamp(self, X_prev: HandState, X_cmd: HandState, dt_s: float) -> HandState:
+        """X_cmd inside the workspace box and within the speed limits from X_prev over dt_s.
+
+        The position is clipped into the box, openness into [0, 1]; then the step from
+        X_prev is scaled to the limits (translation and rotation by their norms, each finger
+        on its own: `se3.saturate`) and integrated from X_prev (`se3.integrate`). With X_prev
+        inside the box the result stays inside (the box is convex).
+        """
+        p = np.clip(X_cmd.position, self.workspace_min_m, self.workspace_max_m)
+        g = np.clip(X_cmd.openness, 0.0, 1.0)
+        dt = max(float(dt_s), 1e-6)
+        U = diff(HandState(p, X_cmd.rotation, g), X_prev) / dt
+        n = X_cmd.n_fingers
+        v_max = np.array(
+            [self.max_speed_m_s] * 3 + [self.max_rate_rad_s] * 3 + [self.max_finger_rate_per_s] * n
+        )
+        X = integrate(X_prev, saturate(U, v_max), dt)
+        return HandState(
+            np.clip(X.position, self.workspace_min_m, self.workspace_max_m),
+            X.rotation,
+            np.clip(X.openness, 0.0, 1.0),
+        )
+
+
+@dataclass(frozen=True)
+class RobotState:
+    """A robot's measured state.
+
+    Attributes:
+        X: achieved palm pose (base frame) and finger openness in [0, 1].
+        joints: joint positions [rad or m], in the order of `Robot.joint_names`.
+        stamp_s: when it was measured, on the loop's clock [s].
+    """
+
+    X: HandState
+    joints: NDArray[np.float64]
+    stamp_s: float
+
+
+class Robot(Protocol):
+    """A robot as the loop sees it (the issue-25 contract, docs/link.md for a linked one)."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def finger_names(self) -> tuple[str, ...]: ...
+
+    @property
+    def joint_names(self) -> tuple[str, ...]: ...
+
+    @property
+    def limits(self) -> RobotLimits: ...
+
+    def reset(self, now_s: float) -> RobotState:
+        """To the home pose; returns the state there."""
+        ...
+
+    def apply(self, X_cmd: HandState, seq: int, now_s: float) -> None:
+        """This tick's command (seq increases by one per tick). A simulated robot also
+        advances its physics by one loop period; a linked robot publishes it and returns."""
+        ...
+
+    def state(self, now_s: float) -> RobotState | None:
+        """The newest measured state; None = none yet. The loop treats a state whose
+        stamp_s is older than 0.2 s as a lost robot (halt)."""
+        ...
+
+    def describe(self) -> dict[str, Any]:
+        """What rebuilds it (recorded with a session)."""
+        ...
+
+    def scene(self) -> SceneGeometry | None: ...
 
     def close(self) -> None: ...
 
