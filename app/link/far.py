@@ -64,15 +64,21 @@ class FarEnd:
         from dsteleop.robot.env import EnvConfig, KitchenEnv
 
         self.config = config
-        period = 1.0 / config.rate_hz
-        self.env = KitchenEnv(EnvConfig(robot=RobotConfig.for_period(period)))
+        d, t = config.domain_id, config.topics
+        # The session first: a bad endpoint fails before the simulation is built.
+        self._session = open_session(config.far, config.connect_timeout_s, "far end")
+        try:
+            self.env = KitchenEnv(EnvConfig(robot=RobotConfig.for_period(1.0 / config.rate_hz)))
+        except BaseException:
+            self._session.close()
+            raise
         self.env.reset(utensil, seed)
         if len(config.finger_names) != len(self.env.robot.finger_names):
+            self.close()
             raise InputError(
                 f"robot-sim: the link names {len(config.finger_names)} fingers, the simulated "
                 f"hand has {len(self.env.robot.finger_names)}"
             )
-        d, t = config.domain_id, config.topics
         self._wake = threading.Event()
         self._lock = threading.Lock()
         self._pose_slot = _Slot()
@@ -84,7 +90,6 @@ class FarEnd:
         self.applied = 0
         self.halted = True
         self.halt_reason = "waiting for commands"
-        self._session = open_session(config.far, config.connect_timeout_s, "far end")
         self._pose_in: Subscription[ros.PoseMsg] = Subscription(
             self._session,
             d,
@@ -104,6 +109,13 @@ class FarEnd:
         self._pose_out = Topic(self._session, d, t.state_pose, ros.POSE_STAMPED)
         self._joints_out = Topic(self._session, d, t.state_joints, ros.JOINT_STATE)
         self._fingers_out = Topic(self._session, d, t.state_fingers, ros.JOINT_STATE)
+        self._endpoints: tuple[Topic | Subscription[Any], ...] = (
+            self._pose_in,
+            self._fingers_in,
+            self._pose_out,
+            self._joints_out,
+            self._fingers_out,
+        )
         self._seq = 0
         self._last_cmd_mono: float | None = None
         st = self.env.state()
@@ -215,7 +227,8 @@ class FarEnd:
                     next_t = now + period
 
     def summary(self) -> dict[str, Any]:
-        """Counters and the latency percentiles [ms] so far."""
+        """Counters, and the link latency so far: a pose command's source stamp (just before
+        the near end published it) to the moment its target was set here [ms]."""
         lat = np.array(self.latencies_s) * 1e3
         return {
             "applied": self.applied,
@@ -223,18 +236,18 @@ class FarEnd:
             "dropped_out_of_order": self.dropped_order,
             "halted": self.halted,
             "halt_reason": self.halt_reason,
-            "latency_ms_p50": round(float(np.percentile(lat, 50)), 3) if lat.size else None,
-            "latency_ms_p99": round(float(np.percentile(lat, 99)), 3) if lat.size else None,
+            "latency_ms": {
+                "p50": round(float(np.percentile(lat, 50)), 3) if lat.size else None,
+                "p95": round(float(np.percentile(lat, 95)), 3) if lat.size else None,
+                "p99": round(float(np.percentile(lat, 99)), 3) if lat.size else None,
+                "max": round(float(lat.max()), 3) if lat.size else None,
+                "n": int(lat.size),
+            },
         }
 
     def close(self) -> None:
-        for c in (
-            self._pose_in,
-            self._fingers_in,
-            self._pose_out,
-            self._joints_out,
-            self._fingers_out,
-        ):
+        for c in getattr(self, "_endpoints", ()):
             c.close()
+        self._endpoints = ()
         self._session.close()
         self.env.close()
