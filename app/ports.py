@@ -110,6 +110,9 @@ class PlantStep:
         events: task events of this tick.
         outcome: the outcome, on the tick it is decided and after; None before.
         scene: world poses of the scene's frames for a viewer, or None.
+        robot_lost: "" while the robot's state is fresh; else why not (a linked robot whose
+            newest state is older than 0.2 s: "robot link lost: no state for 0.3 s"). The
+            loop halts on it as on a lost hand.
     """
 
     X_current: HandState
@@ -117,6 +120,7 @@ class PlantStep:
     events: tuple[TaskEvent, ...] = ()
     outcome: Outcome | None = None
     scene: ScenePoses | None = None
+    robot_lost: str = ""
 
     @property
     def segment_changed(self) -> bool:

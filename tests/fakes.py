@@ -65,6 +65,8 @@ class FakePlant:
         self.lag = lag
         self.resets = 0
         self.commands: list[HandState] = []
+        #: (from, to) in the plant's time [s]: its robot's state is stale (a lost link).
+        self.lost_between: tuple[float, float] | None = None
         self.reset()
 
     def reset(self, utensil: str | None = None) -> HandState:
@@ -109,7 +111,16 @@ class FakePlant:
                 self.phase = Phase.DONE
                 self.outcome = Outcome(True, "in_bin", self.t_s, "thing")
                 events.append(TaskEvent(EventKind.SUCCESS, self.t_s, "in_bin"))
-        return PlantStep(self.X, self.phase, tuple(events), self.outcome)
+        lost = self.lost_between is not None and (
+            self.lost_between[0] <= self.t_s < self.lost_between[1]
+        )
+        return PlantStep(
+            self.X,
+            self.phase,
+            tuple(events),
+            self.outcome,
+            robot_lost="robot link lost: no state for 0.3 s" if lost else "",
+        )
 
     def set_goal_noise(self, sigma_m: float) -> None:
         pass

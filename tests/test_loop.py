@@ -178,6 +178,32 @@ def test_hidden_hand_halts_the_robot_within_0_2_s_and_resumes_without_a_jump() -
     np.testing.assert_allclose(first_back.step.U_human, 0.0, atol=1e-12)
 
 
+def test_a_lost_robot_halts_the_loop_as_a_lost_hand_does_and_it_resumes() -> None:
+    # The plant's robot state is stale (a linked robot whose far end stopped publishing)
+    # from 1.5 s to 2.5 s of plant time, while the hand keeps moving.
+    loop = make_loop(moving((0.0, -0.10, -0.06), T=3.0))
+    assert isinstance(loop.plant, FakePlant)
+    loop.plant.lost_between = (1.5, 2.5)
+    records = run(loop, 3.5)
+    t = np.array([r.t_s for r in records])
+    speed = speeds(records)
+    assert speed[(t[1:] > 1.0) & (t[1:] < 1.4)].min() > 0.01  # it was moving
+    lost = [r for r in records if r.reason.startswith("robot link lost")]
+    assert lost and all(r.status is Status.LOST and r.step is None for r in lost)
+    t_lost = lost[0].t_s
+    # one tick to learn it, then the halt ramp: still within 0.2 s
+    assert speed[(t[1:] >= t_lost + 0.1) & (t[1:] < t[-1]) & (t[1:] < 2.4)].max() < 1e-9
+    cmds = [float(np.linalg.norm(r.U_cmd[:3])) for r in lost]
+    assert cmds[-1] == 0.0 and all(b <= a for a, b in itertools.pairwise(cmds))
+    # back: tracking again, re-anchored (no jump beyond one tick at v_max)
+    back = [r for r in records if r.t_s > lost[-1].t_s]
+    assert back and back[-1].status is Status.TRACKING
+    assert speed[t[1:] > lost[-1].t_s].max() <= loop.config.arbitration.v_max_mps * 1.0001
+    first_back = next(r for r in back if r.step is not None)
+    assert first_back.step is not None
+    np.testing.assert_allclose(first_back.step.U_human, 0.0, atol=1e-12)
+
+
 def test_nan_in_the_hand_data_counts_as_stale() -> None:
     def corrupt(inp: HumanInput) -> HumanInput:
         if inp.t_capture_s >= 1.0 and inp.X_human is not None:

@@ -22,7 +22,7 @@ import logging
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from dsteleop.app.cli.options import LoopOptions
 from dsteleop.app.inputs.demo import DemoCamera, DemoConfig, DemoOperator, demo_source
@@ -42,6 +42,9 @@ from dsteleop.tracking.sources import (
     available_cameras,
     open_source,
 )
+
+if TYPE_CHECKING:
+    from dsteleop.app.link.plant import LinkedKitchenPlant
 
 log = logging.getLogger(__name__)
 
@@ -93,6 +96,7 @@ def build(
     record_root: Path | None = None,
     observers: tuple[Observer, ...] = (),
     mapping: MappingConfig | None = None,
+    link: Path | None = None,
 ) -> Built:
     """Build the plant, the hand input and the loop (module docstring).
 
@@ -103,6 +107,9 @@ def build(
         record_root: where a recording requested from the page is written, or None.
         observers: more observers of every tick.
         mapping: camera -> robot mapping (default `MappingConfig()`).
+        link: the arm at the far end of this Zenoh link's configuration file, instead of the
+            in-process kitchen (`link.plant.LinkedKitchenPlant`; the far end draws the goals:
+            start `robot-sim` with the same --utensil, --seed and --goal-noise).
     """
     spec = resolve_source(options.source)
     mapping = mapping or MappingConfig()
@@ -118,14 +125,22 @@ def build(
             options = dataclasses.replace(
                 options, loop=dataclasses.replace(options.loop, input_delay_s=world.delay_s)
             )
-    plant = KitchenPlant(
-        options.utensil,
-        options.seed,
-        goal_noise_m,
-        export_scene=export_scene or options.rerun is not None,
-        time_limit_s=options.time_limit_s,
-        control_dt_s=options.loop.dt_s,  # the world keeps the loop's time
-    )
+    plant: KitchenPlant | LinkedKitchenPlant
+    if link is not None:
+        from dsteleop.app.link.config import read_link_config
+        from dsteleop.app.link.plant import LinkedKitchenPlant
+
+        plant = LinkedKitchenPlant(read_link_config(link), options.utensil, options.seed)
+        log.info("robot: the far end of %s (goal noise as robot-sim draws it)", link)
+    else:
+        plant = KitchenPlant(
+            options.utensil,
+            options.seed,
+            goal_noise_m,
+            export_scene=export_scene or options.rerun is not None,
+            time_limit_s=options.time_limit_s,
+            control_dt_s=options.loop.dt_s,  # the world keeps the loop's time
+        )
     rerun: Any = None
     try:
         start = plant.reset()

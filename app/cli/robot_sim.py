@@ -1,6 +1,7 @@
 """`dsteleop robot-sim --zenoh CONFIG`: the PyBullet robot at the far end of the Zenoh link.
 
-    dsteleop robot-sim --zenoh link.json [--utensil spoon] [--seed 0] [--duration S]
+    dsteleop robot-sim --zenoh link.json [--utensil spoon] [--seed 0] [--goal-noise M]
+                       [--duration S]
 
 Runs the KUKA iiwa with its hand in the kitchen as a separate process behind the link
 (`app.link.far`): it takes the commands dsteleop publishes (dropping stale and out-of-order
@@ -31,6 +32,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--utensil", default="spoon", help="the kitchen's utensil")
     parser.add_argument("--seed", type=int, default=0, help="the kitchen's seed")
     parser.add_argument(
+        "--goal-noise",
+        type=float,
+        default=None,
+        metavar="M",
+        help="std-dev of the task's goal position noise [m] (default: the task's, 0.01)",
+    )
+    parser.add_argument(
         "--duration", type=float, default=None, metavar="S", help="stop after S seconds"
     )
 
@@ -50,7 +58,9 @@ def run(args: argparse.Namespace) -> int:
     if args.duration is not None and not args.duration > 0:
         raise ConfigError(f"--duration must be > 0, got {args.duration}")
     config = read_link_config(args.zenoh)
-    far = FarEnd(config, utensil=args.utensil, seed=args.seed)
+    if args.goal_noise is not None and not 0.0 <= args.goal_noise <= 0.1:
+        raise ConfigError(f"--goal-noise must be in [0, 0.1] m, got {args.goal_noise}")
+    far = FarEnd(config, utensil=args.utensil, seed=args.seed, goal_noise_m=args.goal_noise)
     stop = _Stop()
     log.info(
         "robot-sim: %s at %g Hz, endpoints listen %s connect %s, commands on %s",

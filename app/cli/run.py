@@ -17,6 +17,7 @@ import signal
 import sys
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from dsteleop.app.cli.options import (
@@ -39,11 +40,13 @@ class RunCommand:
         options: the loop options shared with `serve`.
         realtime: run at the loop rate on the monotonic clock (live).
         max_seconds: stop after this much loop time [s].
+        link: the link's configuration file of `--robot zenoh:CONFIG`, or None.
     """
 
     options: LoopOptions
     realtime: bool
     max_seconds: float
+    link: Path | None = None
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -59,6 +62,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=150.0,
         help="stop after this loop time [s] (the task fails by timeout at 120 s)",
     )
+    parser.add_argument(
+        "--robot",
+        default=None,
+        metavar="zenoh:CONFIG",
+        help="the arm at the far end of a Zenoh link (docs/link.md; start `dsteleop robot-sim "
+        "--zenoh CONFIG` first); runs in real time",
+    )
 
 
 def command(args: argparse.Namespace) -> RunCommand:
@@ -66,7 +76,14 @@ def command(args: argparse.Namespace) -> RunCommand:
     if not args.max_seconds > 0:
         raise ConfigError(f"--max-seconds must be > 0, got {args.max_seconds}")
     live = options.source.kind in ("webcam", "auto")
-    return RunCommand(options, bool(args.realtime or live), float(args.max_seconds))
+    link = None
+    if args.robot is not None:
+        kind, _, rest = str(args.robot).partition(":")
+        if kind != "zenoh" or not rest:
+            raise ConfigError(f"--robot {args.robot!r}: expected zenoh:CONFIG (docs/link.md)")
+        link = Path(rest)
+        live = True  # the far end's physics keeps its own clock
+    return RunCommand(options, bool(args.realtime or live), float(args.max_seconds), link)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -77,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
     log.info(
         "run: source %s, mode %s, realtime %s", opts.source, opts.loop.mode.value, cmd.realtime
     )
-    built = build(opts, realtime=cmd.realtime)
+    built = build(opts, realtime=cmd.realtime, link=cmd.link)
     loop = built.loop
     max_ticks = int(cmd.max_seconds * opts.loop.rate_hz)
     t0 = time.perf_counter()

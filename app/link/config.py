@@ -76,6 +76,8 @@ class Topics:
         state_pose: far -> near, PoseStamped: the measured palm pose.
         state_joints: far -> near, JointState: the measured joint positions [rad or m].
         state_fingers: far -> near, JointState: the finger openness the robot is holding.
+        task: far -> near, std_msgs/String (JSON): the simulated kitchen task's phase, goals,
+            events and outcome (`robot-sim` only: a simulation study over the link).
     """
 
     command_pose: str = "/dsteleop/palm_pose_command"
@@ -83,6 +85,7 @@ class Topics:
     state_pose: str = "/dsteleop/palm_pose"
     state_joints: str = "/dsteleop/joint_states"
     state_fingers: str = "/dsteleop/finger_state"
+    task: str = "/dsteleop/task"
 
     def __post_init__(self) -> None:
         names = dataclasses.astuple(self)

@@ -21,6 +21,7 @@ an `InputError` (one line, exit code 2).
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import threading
 import time
@@ -32,9 +33,21 @@ import numpy as np
 from dsteleop.app.link import ros
 from dsteleop.app.link.config import LinkConfig
 from dsteleop.app.link.session import Received, Subscription, Topic, open_session
+from dsteleop.arbitration import HandState
 from dsteleop.errors import InputError
 
 log = logging.getLogger(__name__)
+
+
+def state_json(X: HandState) -> list[float]:
+    """A hand state as 12 + F numbers: position, rotation row by row, openness."""
+    return [float(v) for v in (*X.position, *np.ravel(X.rotation), *X.openness)]
+
+
+def state_from_json(v: list[float]) -> HandState:
+    """`state_json`'s inverse."""
+    a = np.asarray(v, dtype=np.float64)
+    return HandState(a[:3], a[3:12].reshape(3, 3), a[12:])
 
 
 @dataclasses.dataclass
@@ -53,13 +66,20 @@ class FarEnd:
     Args:
         config: the link's configuration.
         utensil: the kitchen's utensil (the world the arm stands in).
-        seed: the kitchen's seed.
+        seed: the kitchen's seed (of the task's goal noise).
+        goal_noise_m: std-dev of the task's goal position noise [m] (None: the task's).
 
     Raises:
         InputError: the session cannot be opened.
     """
 
-    def __init__(self, config: LinkConfig, utensil: str = "spoon", seed: int = 0) -> None:
+    def __init__(
+        self,
+        config: LinkConfig,
+        utensil: str = "spoon",
+        seed: int = 0,
+        goal_noise_m: float | None = None,
+    ) -> None:
         from dsteleop.robot.arm import RobotConfig
         from dsteleop.robot.env import EnvConfig, KitchenEnv
 
@@ -68,7 +88,11 @@ class FarEnd:
         # The session first: a bad endpoint fails before the simulation is built.
         self._session = open_session(config.far, config.connect_timeout_s, "far end")
         try:
-            self.env = KitchenEnv(EnvConfig(robot=RobotConfig.for_period(1.0 / config.rate_hz)))
+            env_config = EnvConfig(robot=RobotConfig.for_period(1.0 / config.rate_hz))
+            if goal_noise_m is not None:
+                task = dataclasses.replace(env_config.task, goal_noise_pos_m=float(goal_noise_m))
+                env_config = dataclasses.replace(env_config, task=task)
+            self.env = KitchenEnv(env_config)
         except BaseException:
             self._session.close()
             raise
@@ -109,12 +133,15 @@ class FarEnd:
         self._pose_out = Topic(self._session, d, t.state_pose, ros.POSE_STAMPED)
         self._joints_out = Topic(self._session, d, t.state_joints, ros.JOINT_STATE)
         self._fingers_out = Topic(self._session, d, t.state_fingers, ros.JOINT_STATE)
+        self._task_out = Topic(self._session, d, t.task, ros.STRING)
+        self._events: list[Any] = []
         self._endpoints: tuple[Topic | Subscription[Any], ...] = (
             self._pose_in,
             self._fingers_in,
             self._pose_out,
             self._joints_out,
             self._fingers_out,
+            self._task_out,
         )
         self._seq = 0
         self._last_cmd_mono: float | None = None
@@ -202,6 +229,23 @@ class FarEnd:
         self._fingers_out.put(
             ros.encode_joints(t.finger_names, st.palm.openness, stamp), self._seq, stamp
         )
+        self._task_out.put(ros.encode_string(json.dumps(self._task_status())), self._seq, stamp)
+
+    def _task_status(self) -> dict[str, Any]:
+        """The kitchen task as the near end's plant needs it (`link.plant`): phase, the
+        known goal, the true goals (for the demo operator), this tick's events, outcome."""
+        task = self.env.task
+        pick = (*self.env.grasp_pose(), np.ones(len(self.config.finger_names)))
+        place = (*task.place_true, np.ones(len(self.config.finger_names)))
+        out = task.outcome
+        return {
+            "phase": task.phase.value,
+            "t_s": self.env.robot.state_time_s,
+            "goal": None if task.phase.value == "done" else state_json(task.goal),
+            "true_goals": [state_json(HandState(*pick)), state_json(HandState(*place))],
+            "events": [[e.kind.value, e.t_s, e.detail] for e in self.env.last_events],
+            "outcome": None if out is None else dataclasses.asdict(out),
+        }
 
     def run(self, stop: threading.Event, duration_s: float | None = None) -> None:
         """Step and publish in real time until `stop` is set (or `duration_s` passed)."""

@@ -122,6 +122,7 @@ class TeleopLoop:
         self.utensil = str(plant.describe().get("utensil", ""))
         self.tick_index = 0
         self._reset_state: HandState | None = self.state.X_current  # in the next record
+        self._robot_lost = ""  # the last tick's PlantStep.robot_lost: halts the next
 
     # --- state -----------------------------------------------------------------------
 
@@ -302,10 +303,21 @@ class TeleopLoop:
             inp = self.hand.reanchor(inp, tick.anchor_target(self.state))
         ended = self.hand.end_reason if self.hand.finished else ""
         self.state, decision = tick.decide(
-            self.state, self.config, self.arbiter, inp, goal, now, self._history_term(), ended
+            self.state,
+            self.config,
+            self.arbiter,
+            inp,
+            goal,
+            now,
+            self._history_term(),
+            ended,
+            self._robot_lost,
         )
         t_arb = self.clock.now()
         result = self.plant.apply(decision.X_next)
+        if result.robot_lost != self._robot_lost:
+            log.warning("%s", result.robot_lost or "robot link back")
+        self._robot_lost = result.robot_lost
         t_cmd = self.clock.now()
         self.state, segment_ended = tick.absorb(self.state, result, self.arbiter)
         if segment_ended and self._history_file is not None:

@@ -5,7 +5,7 @@ A tick has two halves around the robot (`runner.TeleopLoop` calls them and the p
     decide(state, input, goal, now)  ->  state', Decision(X_next, U_cmd, step, status)
         fresh hand (valid, age <= stale_limit_s):
             the arbitration, eq (1)-(8), integrating eq (2) from the commanded reference
-        no fresh hand, policy "halt":
+        no fresh hand (or a lost robot: its state is stale), policy "halt":
             U_cmd = U_at_loss * ramp, the ramp falling 1 -> 0 over halt_ramp_s, then 0: the
             command is 0 within stale_limit_s + halt_ramp_s of the last fresh sample, and a
             stale command is never repeated
@@ -155,11 +155,14 @@ def decide(
     now_s: float,
     history_term: Array | None,
     ended: str = "",
+    robot_lost: str = "",
 ) -> tuple[LoopState, Decision]:
     """The first half of a tick (module docstring). `inp` is already re-anchored; `ended`
-    says why there is no more input once the source has ended ("" while it runs)."""
+    says why there is no more input once the source has ended ("" while it runs);
+    `robot_lost` why the robot's state is stale (a linked robot: `PlantStep.robot_lost`),
+    which halts as a lost hand does."""
     dt = cfg.dt_s
-    reason = staleness(inp, now_s, cfg, ended)
+    reason = robot_lost or staleness(inp, now_s, cfg, ended)
     if not reason and inp is not None and inp.X_human is not None and goal is not None:
         X_h = inp.X_human
         X_h_prev = X_h if state.lost or state.X_human_prev is None else state.X_human_prev
