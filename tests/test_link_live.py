@@ -310,3 +310,46 @@ def test_a_message_of_the_wrong_type_is_one_line_exit_2(tmp_path):
     finally:
         robot.close()
         listener.close()
+
+
+def test_run_drives_the_demo_over_the_link(tmp_path):
+    cfg = link_file(tmp_path, free_port())
+    far = Far(cfg)
+    try:
+        r = subprocess.run(
+            [*CLI, "run", "--source", "demo", "--seed", "0", "--robot", f"zenoh:{cfg}"],
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        time.sleep(0.5)  # more than the far end's 0.2 s watchdog after the last command
+        summary = far.terminate()
+    finally:
+        if far.proc.poll() is None:
+            far.kill()
+    assert r.returncode == 0, r.stderr
+    result = json.loads(r.stdout.strip().splitlines()[-1])
+    # the task ran at the far end and its events came back; an outcome was decided
+    assert result["stopped_by"] == "outcome" and result["outcome"] in ("success", "failure")
+    assert any(e.split(":")[1] == "grasp" for e in result["events"]), result["events"]
+    assert summary["applied"] > 0.9 * result["ticks"]
+    # the near end stopped commanding at the outcome: the far end's watchdog halted the arm
+    assert summary["halted"]
+
+
+def test_run_with_a_bad_robot_or_no_far_end_is_one_line_exit_2(tmp_path):
+    r = subprocess.run([*CLI, "run", "--robot", "panda7"], capture_output=True, text=True)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "expected zenoh:CONFIG" in r.stderr
+    cfg = tmp_path / "link.json"
+    cfg.write_text(
+        json.dumps(
+            {"near": {"connect": [f"tcp/127.0.0.1:{free_port()}"]}, "connect_timeout_s": 0.5}
+        )
+    )
+    r = subprocess.run(
+        [*CLI, "run", "--source", "demo", "--robot", f"zenoh:{cfg}"], capture_output=True, text=True
+    )
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    errors = [ln for ln in r.stderr.splitlines() if "error:" in ln]
+    assert len(errors) == 1 and "no answer from" in errors[0], r.stderr

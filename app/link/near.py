@@ -63,6 +63,11 @@ class ZenohRobot:
         self.last_sent: HandState | None = None
         self.sent = 0
 
+    @property
+    def session(self) -> Any:
+        """The Zenoh session (for more topics on the same link: `link.plant`)."""
+        return self._session
+
     # --- Robot -------------------------------------------------------------------------
 
     @property

@@ -50,7 +50,7 @@ class LinkedKitchenPlant:
         self._events: list[TaskEvent] = []
         self._status: dict[str, Any] | None = None
         self._task_in: Subscription[str] = Subscription(
-            self.robot._session,
+            self.robot.session,
             config.domain_id,
             config.topics.task,
             ros.STRING,
