@@ -200,8 +200,8 @@ def test_near_end_killed_halts_the_far_ends_robot(tmp_path):
     assert summary["halted"] and summary["halt_reason"].startswith("no command for")
     halt = [ln for ln in far.lines if "halted, no command for" in ln]
     assert len(halt) == 1, far.lines
-    # the watchdog fires once no command came for 0.2 s, checked every tick (1/30 s)
-    assert float(halt[0].split("no command for ")[1].split(" s")[0]) <= 0.2 + 1 / 30 + 0.02
+    # the watchdog fires once no command came for 0.2 s (it wakes for it, not at the next tick)
+    assert float(halt[0].split("no command for ")[1].split(" s")[0]) <= 0.2 + 0.02
     t = np.array([s[0] for s in states]) - t_kill
     p = np.array([s[1] for s in states])
     v = np.linalg.norm(np.diff(p, axis=0), axis=1) / np.maximum(np.diff(t), 1e-3)

@@ -257,13 +257,17 @@ class FarEnd:
             now = time.monotonic()
             if t_end is not None and now >= t_end:
                 return
-            self._wake.wait(max(0.0, next_t - now))
+            deadline = next_t
+            if not self.halted and self._last_cmd_mono is not None:
+                # wake when the watchdog is due, not at the next tick after it
+                deadline = min(deadline, self._last_cmd_mono + self.config.command_timeout_s)
+            self._wake.wait(max(0.0, deadline - now) + 1e-4)
             self._wake.clear()
             self._check_errors()
             self._apply_commands()
             now = time.monotonic()
+            self._watchdog(now)
             if now >= next_t:
-                self._watchdog(now)
                 self.env.step()
                 self._publish()
                 next_t += period
