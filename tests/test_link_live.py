@@ -333,6 +333,7 @@ def test_run_drives_the_demo_over_the_link(tmp_path):
     assert result["stopped_by"] == "outcome" and result["outcome"] in ("success", "failure")
     assert any(e.split(":")[1] == "grasp" for e in result["events"]), result["events"]
     assert summary["applied"] > 0.9 * result["ticks"]
+    assert result["robot_lost_ticks"] < 0.05 * result["ticks"]
     # the near end stopped commanding at the outcome: the far end's watchdog halted the arm
     assert summary["halted"]
 

@@ -189,6 +189,7 @@ def test_a_lost_robot_halts_the_loop_as_a_lost_hand_does_and_it_resumes() -> Non
     speed = speeds(records)
     assert speed[(t[1:] > 1.0) & (t[1:] < 1.4)].min() > 0.01  # it was moving
     lost = [r for r in records if r.reason.startswith("robot link lost")]
+    assert loop.robot_lost_ticks == len(lost)
     assert lost and all(r.status is Status.LOST and r.step is None for r in lost)
     t_lost = lost[0].t_s
     # one tick to learn it, then the halt ramp: still within 0.2 s

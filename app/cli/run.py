@@ -136,6 +136,8 @@ def run(args: argparse.Namespace) -> int:
         "session": None if opts.record is None else str(opts.record),
         "timing": timing,
     }
+    if cmd.link is not None:
+        summary["robot_lost_ticks"] = loop.robot_lost_ticks
     if built.rerun is not None:
         summary["rerun"] = built.rerun.summary()
     json.dump(summary, sys.stdout)

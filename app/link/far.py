@@ -13,6 +13,8 @@ the kitchen (`robot.env.KitchenEnv`) in real time at `rate_hz`, and:
                Servo halts when its commands stop. A fresh command resumes.
     state      after each physics step (1/rate_hz of simulated time): the measured palm pose,
                every joint's position and the fingers' openness, stamped and numbered.
+               Before the first command the world stands still (published, not stepped),
+               so the kitchen task's clock starts when the near end does.
 
 A wrong message on a command topic (another type, bytes that are not the type) stops it with
 an `InputError` (one line, exit code 2).
@@ -268,7 +270,8 @@ class FarEnd:
             now = time.monotonic()
             self._watchdog(now)
             if now >= next_t:
-                self.env.step()
+                if self.applied:  # the world (and the task's clock) starts with the first command
+                    self.env.step()
                 self._publish()
                 next_t += period
                 if now - next_t > period:  # fell behind: re-anchor, do not catch up

@@ -123,6 +123,8 @@ class TeleopLoop:
         self.tick_index = 0
         self._reset_state: HandState | None = self.state.X_current  # in the next record
         self._robot_lost = ""  # the last tick's PlantStep.robot_lost: halts the next
+        #: Ticks whose plant reported its robot lost (a linked robot's stale state).
+        self.robot_lost_ticks = 0
 
     # --- state -----------------------------------------------------------------------
 
@@ -318,6 +320,7 @@ class TeleopLoop:
         if result.robot_lost != self._robot_lost:
             log.warning("%s", result.robot_lost or "robot link back")
         self._robot_lost = result.robot_lost
+        self.robot_lost_ticks += bool(result.robot_lost)
         t_cmd = self.clock.now()
         self.state, segment_ended = tick.absorb(self.state, result, self.arbiter)
         if segment_ended and self._history_file is not None:
