@@ -25,6 +25,7 @@ GROUPS: dict[str, str] = {
     "loop": "dsteleop.app.bench.loop:run",
     "tune": "dsteleop.app.bench.tune:run",
     "sweep": "dsteleop.app.bench.sweep:run",
+    "link": "dsteleop.app.bench.link:run",
 }
 
 
