@@ -362,3 +362,54 @@ def test_run_with_a_bad_robot_or_no_far_end_is_one_line_exit_2(tmp_path):
     assert r.returncode == 2 and "Traceback" not in r.stderr
     errors = [ln for ln in r.stderr.splitlines() if "error:" in ln]
     assert len(errors) == 1 and "no answer from" in errors[0], r.stderr
+
+
+def test_serve_builds_the_linked_robot_with_its_twin_and_shows_it_lost(tmp_path):
+    """What `serve --robot zenoh:CONFIG` builds (compose.build, live, with scene poses): the
+    page's scene is the twin's kitchen, the loop's ticks carry its poses, a killed far end
+    shows red as "lost: robot lost" on the page within 0.2 s (+ ticks), and a restarted one
+    is driven again."""
+    from dsteleop.app.cli.compose import build
+    from dsteleop.app.cli.options import LoopOptions
+    from dsteleop.app.plants.kitchen import KitchenTask
+    from dsteleop.app.session.schema import Status
+    from dsteleop.app.viewer.panel import status_view
+
+    cfg = link_file(tmp_path, free_port(), robot="panda")
+    far = Far(cfg)
+    built = build(LoopOptions.of("demo", robot=f"zenoh:{cfg}"), realtime=True, export_scene=True)
+    loop = built.loop
+    try:
+        assert isinstance(loop.robot, ZenohRobot) and loop.robot.name == "zenoh:panda"
+        assert isinstance(loop.task, KitchenTask) and loop.task.twin
+        assert loop.task.scene() is not None
+        assert loop.session_meta()["robot"]["description"]["name"] == "panda"
+
+        def ticks(seconds: float) -> list[Any]:
+            out = []
+            t_end = loop.clock.now() + seconds
+            while (now := loop.clock.now()) < t_end:
+                out.append(loop.tick(now))
+                loop.clock.sleep_until(now + 1 / 30)
+            return out
+
+        records = ticks(1.0)
+        assert records[-1].plant.scene is not None and records[-1].reason != ROBOT_LOST
+        far.kill()
+        t_kill = loop.clock.now()
+        records = ticks(1.0)
+        lost = [r for r in records if r.reason == ROBOT_LOST]
+        assert lost and lost[0].t_s - t_kill <= 0.2 + 2 / 30 + 0.05, lost[0].t_s - t_kill
+        assert all(r.status is Status.LOST for r in lost)
+        view = status_view(lost[-1])
+        assert (view.word, view.detail) == ("lost", ROBOT_LOST)
+        far = Far(cfg)
+        t_restart = time.monotonic()
+        while loop.tick(loop.clock.now()).reason == ROBOT_LOST:
+            assert time.monotonic() - t_restart < 10.0, "the restarted far end was not picked up"
+            time.sleep(1 / 30)
+        assert far.terminate()["applied"] > 0
+    finally:
+        built.close()
+        if far.proc.poll() is None:
+            far.kill()
