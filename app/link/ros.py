@@ -32,7 +32,6 @@ Array = NDArray[np.float64]
 
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 JOINT_STATE = "sensor_msgs/msg/JointState"
-STRING = "std_msgs/msg/String"
 GID_SIZE = 16
 ATTACHMENT_SIZE = 8 + 8 + 1 + GID_SIZE
 CDR_LE_HEADER = b"\x00\x01\x00\x00"
@@ -218,13 +217,3 @@ def decode_joints(data: bytes) -> JointsMsg:
             f"robot link: invalid JointState ({len(msg.name)} names, {pos.size} positions)"
         )
     return JointsMsg(tuple(str(n) for n in msg.name), pos, _stamp_ns(msg.header))
-
-
-def encode_string(text: str) -> bytes:
-    """A std_msgs/String in CDR."""
-    return bytes(typestore().serialize_cdr(typestore().types[STRING](data=text), STRING))
-
-
-def decode_string(data: bytes) -> str:
-    """Read a std_msgs/String; bytes that are not one are an `InputError`."""
-    return str(_deserialize(data, STRING).data)
