@@ -186,6 +186,11 @@ class RobotLimits:
         return HandState(p, R, g)
 
     def __post_init__(self) -> None:
+        lo, hi = self.workspace_min_m, self.workspace_max_m
+        if len(lo) != 3 or len(hi) != 3 or not all(math.isfinite(v) for v in (*lo, *hi)):
+            raise ConfigError("robot limits: the workspace corners must be 3 finite numbers")
+        if any(a >= b for a, b in zip(lo, hi, strict=True)):
+            raise ConfigError(f"robot limits: workspace_min_m {lo} must be below max {hi}")
         for name in ("max_speed_m_s", "max_rate_rad_s", "max_finger_rate_per_s"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):

@@ -49,6 +49,10 @@ class FakeRobot:
         lag: 0 reaches each command exactly; otherwise X moves this fraction of the way.
         fingers: its openness dimensions (default the four-finger hand's).
         silent_after: stop reporting new states after this many commands (a lost robot).
+
+    Attributes:
+        lost_between: (from, to) on the loop's clock [s]: no new states in between (a link
+            whose far end stopped publishing, then came back), or None.
     """
 
     def __init__(
@@ -70,6 +74,7 @@ class FakeRobot:
         self.seqs: list[int] = []
         self.X = self.start
         self._stamp_s = 0.0
+        self.lost_between: tuple[float, float] | None = None
 
     def reset(self, now_s: float) -> RobotState:
         self.X = self.start
@@ -81,6 +86,8 @@ class FakeRobot:
         self.commands.append(X_cmd)
         self.seqs.append(seq)
         if self.silent_after is not None and len(self.commands) > self.silent_after:
+            return
+        if self.lost_between is not None and self.lost_between[0] <= now_s < self.lost_between[1]:
             return
         if self.lag:
             a = 1.0 - self.lag

@@ -22,7 +22,7 @@ import pytest
 from dsteleop.app.loop import LoopConfig, LostPolicy, TeleopLoop
 from dsteleop.app.loop import tick as loop_tick
 from dsteleop.app.loop.timing import ManualClock
-from dsteleop.app.ports import INVALID, HumanInput
+from dsteleop.app.ports import INVALID, ROBOT_LOST, ROBOT_STALE_S, HumanInput
 from dsteleop.app.session.reader import read_session
 from dsteleop.app.session.schema import Status, TickRecord
 from dsteleop.app.session.writer import HISTORY_FILE, HistoryFile
@@ -173,6 +173,35 @@ def test_hidden_hand_halts_the_robot_within_0_2_s_and_resumes_without_a_jump() -
     back = speed[(t[1:] >= show_at) & (t[1:] < show_at + 0.5)]
     assert back.max() <= loop.config.arbitration.v_max_mps * 1.0001
     first_back = next(r for r in records if r.t_s >= show_at and r.step is not None)
+    assert first_back.step is not None
+    np.testing.assert_allclose(first_back.step.U_human, 0.0, atol=1e-12)
+
+
+def test_a_lost_robot_halts_the_loop_as_a_lost_hand_does_and_it_resumes() -> None:
+    # The robot's state goes stale (a linked robot whose far end stopped publishing) from
+    # 1.5 s to 2.5 s, while the hand keeps moving.
+    loop = make_loop(moving((0.0, -0.10, -0.06), T=3.0))
+    assert isinstance(loop.robot, FakeRobot)
+    loop.robot.lost_between = (1.5, 2.5)
+    records = run(loop, 3.5)
+    t = np.array([r.t_s for r in records])
+    speed = speeds(records)
+    assert speed[(t[1:] > 1.0) & (t[1:] < 1.4)].min() > 0.01  # it was moving
+    lost = [r for r in records if r.reason == ROBOT_LOST]
+    assert loop.robot_lost_ticks == len(lost)
+    assert lost and all(r.status is Status.LOST and r.step is None for r in lost)
+    # lost once its newest state is older than 0.2 s (one tick to learn it)
+    assert 1.5 + ROBOT_STALE_S - DT <= lost[0].t_s <= 1.5 + ROBOT_STALE_S + 2 * DT
+    # the halt ramp: the command is zero within the ramp
+    t_zero = lost[0].t_s + loop.config.halt_ramp_s + DT
+    assert all(float(np.abs(r.U_cmd).max()) == 0.0 for r in lost if r.t_s >= t_zero)
+    cmds = [float(np.linalg.norm(r.U_cmd[:3])) for r in lost]
+    assert cmds[-1] == 0.0 and all(b <= a for a, b in itertools.pairwise(cmds))
+    # back: tracking again, re-anchored (no jump beyond one tick at v_max)
+    back = [r for r in records if r.t_s > lost[-1].t_s]
+    assert back and back[-1].status is Status.TRACKING
+    assert speed[t[1:] > lost[-1].t_s].max() <= loop.config.arbitration.v_max_mps * 1.0001
+    first_back = next(r for r in back if r.step is not None)
     assert first_back.step is not None
     np.testing.assert_allclose(first_back.step.U_human, 0.0, atol=1e-12)
 
@@ -360,13 +389,15 @@ def _step(X: HandState):
     return PlantStep(X, Phase.PICK)
 
 
-def test_the_loop_logic_runs_without_pybullet_or_a_camera() -> None:
+def test_the_loop_logic_runs_without_pybullet_zenoh_or_a_camera() -> None:
     code = (
         "import sys\n"
         "from tests import test_loop as t\n"
         "t.test_manual_mode_moves_the_robot_exactly_as_the_hand_moves()\n"
         "t.test_hidden_hand_halts_the_robot_within_0_2_s_and_resumes_without_a_jump()\n"
-        "heavy = [m for m in ('pybullet', 'cv2', 'mediapipe', 'viser') if m in sys.modules]\n"
+        "t.test_a_lost_robot_halts_the_loop_as_a_lost_hand_does_and_it_resumes()\n"
+        "heavy = ('pybullet', 'cv2', 'mediapipe', 'viser', 'zenoh', 'rosbags')\n"
+        "heavy = [m for m in heavy if m in sys.modules]\n"
         "print(heavy)\n"
         "assert not heavy, heavy\n"
     )

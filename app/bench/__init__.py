@@ -26,6 +26,7 @@ GROUPS: dict[str, str] = {
     "tune": "dsteleop.app.bench.tune:run",
     "sweep": "dsteleop.app.bench.sweep:run",
     "export": "dsteleop.app.bench.export:run",
+    "link": "dsteleop.app.bench.link:run",
 }
 
 

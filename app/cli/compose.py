@@ -29,10 +29,11 @@ from dsteleop.app.inputs.demo import DemoCamera, DemoConfig, DemoOperator, demo_
 from dsteleop.app.inputs.tracked import TrackedHandInput
 from dsteleop.app.loop import TeleopLoop
 from dsteleop.app.loop.timing import ManualClock, MonotonicClock
-from dsteleop.app.plants.kitchen import simulated_kitchen
+from dsteleop.app.plants.kitchen import KitchenTask, simulated_kitchen
 from dsteleop.app.ports import Observer, Robot, Task
 from dsteleop.app.session.video import FrameRecorder
 from dsteleop.app.session.writer import HistoryFile
+from dsteleop.errors import ConfigError
 from dsteleop.tracking.mapping import MappingConfig, WorkspaceMapping
 from dsteleop.tracking.pipeline import HandTracker, TrackingStream
 from dsteleop.tracking.sources import (
@@ -111,9 +112,19 @@ def build(
         mapping: camera -> robot mapping (default `MappingConfig()`).
     """
     spec = resolve_source(options.source)
+    from dsteleop.app.link.config import link_config_path, read_link_config
     from dsteleop.robot.description import load_description
 
-    desc = load_description(options.robot)
+    link = link_config_path(options.robot)
+    if link is not None:
+        link_config, desc = read_link_config(link).for_robot()
+        if abs(link_config.rate_hz * options.loop.dt_s - 1.0) > 1e-6:
+            raise ConfigError(
+                f"--robot zenoh:{link}: the link's rate_hz {link_config.rate_hz:g} is not the "
+                f"loop's rate {1.0 / options.loop.dt_s:g} Hz (the twin keeps the loop's time)"
+            )
+    else:
+        desc = load_description(options.robot)
     # The hand's fingers drive the robot's: the table comes with the robot's description.
     mapping = dataclasses.replace(
         mapping or MappingConfig(), robot_fingers=tuple((f.name, f.human) for f in desc.fingers)
@@ -130,17 +141,30 @@ def build(
             options = dataclasses.replace(
                 options, loop=dataclasses.replace(options.loop, input_delay_s=world.delay_s)
             )
+    task_options: dict[str, Any] = {
+        "utensil": options.utensil,
+        "seed": options.seed,
+        "goal_noise_m": goal_noise_m,
+        "export_scene": export_scene or options.rerun is not None,
+        "time_limit_s": options.time_limit_s,
+        "control_dt_s": options.loop.dt_s,  # the world keeps the loop's time
+    }
     robot: Robot
     task: Task
-    robot, task = simulated_kitchen(
-        desc,
-        utensil=options.utensil,
-        seed=options.seed,
-        goal_noise_m=goal_noise_m,
-        export_scene=export_scene or options.rerun is not None,
-        time_limit_s=options.time_limit_s,
-        control_dt_s=options.loop.dt_s,  # the world keeps the loop's time
-    )
+    if link is None:
+        robot, task = simulated_kitchen(desc, **task_options)
+    else:
+        # The arm at the far end of the link; the task judges it through its twin here
+        # (docs/link.md, "Where the task runs").
+        from dsteleop.app.link.near import ZenohRobot
+
+        task = KitchenTask(desc, twin=True, **task_options)
+        try:
+            robot = ZenohRobot(link_config)
+        except BaseException:
+            task.close()
+            raise
+        log.info("robot: %s at the far end of %s, judged through its twin", desc.name, link)
     rerun: Any = None
     dataset: Any = None
     try:

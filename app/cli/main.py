@@ -26,6 +26,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("dsteleop.app.cli.run", "run the loop without a browser (headless or live); record"),
     "replay": ("dsteleop.app.cli.replay", "replay recorded sessions or videos headless; metrics"),
     "sim": ("dsteleop.app.cli.sim", "reproduce the paper's simulation study (S vs DS); report"),
+    "robot-sim": (
+        "dsteleop.app.cli.robot_sim",
+        "run the PyBullet robot at the far end of a Zenoh link (ROS 2-compatible)",
+    ),
     "serve": ("dsteleop.app.cli.serve", "run the live session and its browser view"),
     "track": ("dsteleop.app.cli.track", "track a hand in a video, images, camera or synthetic"),
     "tune": ("dsteleop.app.cli.tune", "tune the arbitration's hyper-parameters (Optuna, Ray)"),

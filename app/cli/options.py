@@ -187,8 +187,9 @@ def add_loop_options(
         "--robot",
         default="iiwa",
         metavar="NAME|FILE",
-        help="the robot: a shipped description (iiwa, panda) or a robot description file "
-        "(.toml, docs/robots.md); default iiwa",
+        help="the robot: a shipped description (iiwa, panda), a robot description file "
+        "(.toml, docs/robots.md), or zenoh:CONFIG, an arm at the far end of a Zenoh link "
+        "(docs/link.md); default iiwa",
     )
     parser.add_argument(
         "--utensil", default="spoon", help="utensil to pick (spoon, spatula, ladle)"
@@ -400,15 +401,22 @@ def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOp
 
 def check_robot(robot: str) -> None:
     """`--robot NAME|FILE` names a valid robot description (read and checked against its
-    URDF now, before anything runs or records).
+    URDF now, before anything runs or records); `--robot zenoh:CONFIG` a valid link
+    configuration file and its robot's description.
 
     Raises:
         InputError: an unknown name, a missing or malformed file, a link or joint its URDF
             does not have (one line).
+        ConfigError: a link configuration's field out of its domain.
     """
+    from dsteleop.app.link.config import link_config_path, read_link_config
     from dsteleop.robot.description import load_description
 
-    load_description(robot)
+    link = link_config_path(robot)
+    if link is not None:
+        read_link_config(link).for_robot()
+    else:
+        load_description(robot)
 
 
 def check_loop_bounds(

@@ -26,6 +26,7 @@ from dsteleop.app.cli.options import (
     loop_options,
 )
 from dsteleop.app.cli.signals import StopOnSignal
+from dsteleop.app.link.config import link_config_path
 from dsteleop.errors import ConfigError
 
 log = logging.getLogger(__name__)
@@ -39,11 +40,13 @@ class RunCommand:
         options: the loop options shared with `serve`.
         realtime: run at the loop rate on the monotonic clock (live).
         max_seconds: stop after this much loop time [s].
+        linked: the robot is at the far end of a link (`--robot zenoh:CONFIG`).
     """
 
     options: LoopOptions
     realtime: bool
     max_seconds: float
+    linked: bool = False
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -66,7 +69,11 @@ def command(args: argparse.Namespace) -> RunCommand:
     if not args.max_seconds > 0:
         raise ConfigError(f"--max-seconds must be > 0, got {args.max_seconds}")
     live = options.source.kind in ("webcam", "auto")
-    return RunCommand(options, bool(args.realtime or live), float(args.max_seconds))
+    linked = link_config_path(options.robot) is not None
+    # A linked robot's physics keeps its own clock: the loop runs in real time.
+    return RunCommand(
+        options, bool(args.realtime or live or linked), float(args.max_seconds), linked
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -127,6 +134,8 @@ def run(args: argparse.Namespace) -> int:
         "session": None if session is None else str(session),
         "timing": timing,
     }
+    if cmd.linked:
+        summary["robot_lost_ticks"] = loop.robot_lost_ticks
     if built.rerun is not None:
         summary["rerun"] = built.rerun.summary()
     if built.dataset is not None:

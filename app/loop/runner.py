@@ -148,6 +148,8 @@ class TeleopLoop:
         self.events_log: list[tuple[int, str]] = []
         self._seq = 0  # the robot's command sequence number (one per tick, never reset)
         self._robot_lost = ""  # why the robot cannot be driven ("" while it can)
+        #: Ticks on which the robot was lost (its state missing or stale), since the start.
+        self.robot_lost_ticks = 0
         self.state = tick.start(self._reset_world(None), self.arbiter, history)
         self.utensil = str(task.describe().get("utensil", ""))
         self.tick_index = 0
@@ -355,6 +357,7 @@ class TeleopLoop:
         self._seq += 1
         self.robot.apply(decision.X_next, self._seq, now)
         result = self._observe_robot(now)
+        self.robot_lost_ticks += bool(self._robot_lost)
         t_cmd = self.clock.now()
         self.state, segment_ended = tick.absorb(self.state, result, self.arbiter)
         if segment_ended and self._history_file is not None:

@@ -8,11 +8,12 @@ events, outcome). How it judges a robot (docs/ARCHITECTURE.md):
                  `plants.simulated.SimulatedRobot` sharing the env). `Robot.apply` stepped
                  the physics; `update` only observes: the utensil, the contacts, the task.
     twin         any other robot (a linked one): this world's robot is its twin. `update`
-                 drives the twin's joints to the measured ones (position motors, one loop
-                 period of physics) with the measured finger command, then observes as
-                 above. The utensil moves with the twin, so the outcome is the twin's: exact
-                 where the far end's world is this one (the reference far end, `robot-sim`),
-                 an estimate of the real scene for a real arm.
+                 drives the twin's arm joints to the measured ones (position motors, one loop
+                 period of physics) and its fingers by the measured finger command (so they
+                 grip this world's utensil with the hand's force), then observes as above.
+                 The utensil moves with the twin, so the outcome is the twin's: close to
+                 the far end's where its world is this one (the reference far end,
+                 `robot-sim`), an estimate of the real scene for a real arm.
 
 Everything that rebuilds the same task (utensil, seed, goal noise, control period, timeout)
 is in `describe()`, which recordings store, so `task_from_meta` gives replays the same world
@@ -99,8 +100,13 @@ class KitchenTask:
 
     def update(self, state: RobotState) -> TaskStep:
         if self.twin:
-            names = joint_names_of(self.config.description)
-            self.env.follow(dict(zip(names, state.joints.tolist(), strict=True)), state.X.openness)
+            desc = self.config.description
+            measured = dict(zip(joint_names_of(desc), state.joints.tolist(), strict=True))
+            # The arm follows the measured joints; the fingers take the measured openness (the
+            # finger command), so they grip this world's utensil with the hand's force, as the
+            # far hand grips what is in front of it. Held at the far fingers' measured angles
+            # they would touch it with no force, and it slipped in transport.
+            self.env.follow({j: measured[j] for j in desc.arm_joints}, state.X.openness)
         self.env.observe_task()
         task = self.env.task
         return TaskStep(

@@ -46,14 +46,16 @@ class SimulatedRobot:
         self._limits = limits_of(self.desc)
 
     @classmethod
-    def alone(cls, desc: RobotDescription, control_dt_s: float | None = None) -> SimulatedRobot:
-        """A robot in a world of its own (the kitchen's, with nothing judging it)."""
+    def alone(
+        cls, desc: RobotDescription, control_dt_s: float | None = None, utensil: str = "spoon"
+    ) -> SimulatedRobot:
+        """A robot in a world of its own (the kitchen's with `utensil`, nothing judging it)."""
         cfg = EnvConfig(description=desc)
         if control_dt_s is not None:
             from dsteleop.robot.arm import RobotConfig
 
             cfg = dataclasses.replace(cfg, robot=RobotConfig.for_period(control_dt_s))
-        return cls(KitchenEnv(cfg), owns_world=True)
+        return cls(KitchenEnv(cfg), owns_world=True, utensil=utensil)
 
     @property
     def name(self) -> str:

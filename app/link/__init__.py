@@ -1,0 +1,1 @@
+"""The robot link over Zenoh (docs/link.md)."""

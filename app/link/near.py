@@ -1,0 +1,219 @@
+"""The near end: a robot at the far end of a Zenoh link, as a `ports.Robot`.
+
+The arm is the link configuration's robot description (`LinkConfig.robot`): its fingers,
+its joints' order and, unless the file gives its own, its limits (`config.link_limits`).
+`ZenohRobot.apply` clamps each tick's command into the robot's workspace and speed limits
+(`RobotLimits.clamp`, from the last command it sent), then publishes it at once: the palm
+pose as a geometry_msgs/PoseStamped, the finger openness as a sensor_msgs/JointState, both
+stamped (header stamp and attachment: UNIX time [ns]) and numbered (the attachment's sequence
+number is the loop's tick seq). `state` returns the newest measured palm pose, joints and
+finger openness the far end published (the joints in `joint_names` order: the arm's, then
+the fingers', as the kitchen task's twin takes them), stamped with their arrival on the
+loop's clock: the loop treats a state older than 0.2 s (`ports.ROBOT_STALE_S`) as a lost
+robot and halts (`link_status` says why, for tools). A wrong message on a state topic
+(another type, bytes that are not the type) is an `InputError` from `state`: one line and
+exit code 2 at the command line.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dsteleop.app.link import ros
+from dsteleop.app.link.config import LinkConfig
+from dsteleop.app.link.session import Received, Subscription, Topic, open_session
+from dsteleop.app.plants.described import joint_names_of
+from dsteleop.app.ports import ROBOT_LOST, ROBOT_STALE_S, RobotLimits, RobotState
+from dsteleop.arbitration import HandState
+from dsteleop.errors import InputError
+from dsteleop.robot.scene import SceneGeometry
+
+
+class ZenohRobot:
+    """A robot driven over Zenoh (module docstring).
+
+    Args:
+        config: the link's configuration (endpoints, topics, the robot, limits, timeouts).
+
+    Raises:
+        InputError: the session cannot be opened (no far end at the endpoint, a port in use),
+            or the robot's description does not load.
+        ConfigError: the configuration's finger names are not the description's.
+    """
+
+    def __init__(self, config: LinkConfig) -> None:
+        self.config, self.desc = config.for_robot()
+        assert self.config.limits is not None  # for_robot filled it in
+        self._limits = self.config.limits
+        self._joint_names = joint_names_of(self.desc)
+        config = self.config
+        d, t = config.domain_id, config.topics
+        self._session = open_session(config.near, config.connect_timeout_s, "near end")
+        self._pose_out = Topic(self._session, d, t.command_pose, ros.POSE_STAMPED)
+        self._fingers_out = Topic(self._session, d, t.command_fingers, ros.JOINT_STATE)
+        self._pose_in: Subscription[ros.PoseMsg] = Subscription(
+            self._session, d, t.state_pose, ros.POSE_STAMPED, ros.decode_pose
+        )
+        self._joints_in: Subscription[ros.JointsMsg] = Subscription(
+            self._session, d, t.state_joints, ros.JOINT_STATE, ros.decode_joints
+        )
+        self._fingers_in: Subscription[ros.JointsMsg] = Subscription(
+            self._session, d, t.state_fingers, ros.JOINT_STATE, ros.decode_joints
+        )
+        self._X_sent: HandState | None = None
+        self._t_sent_s: float | None = None
+        #: The last command as sent (after the clamp), for tests and benchmarks.
+        self.last_sent: HandState | None = None
+        self.sent = 0
+
+    # --- Robot -------------------------------------------------------------------------
+
+    @property
+    def name(self) -> str:
+        return f"zenoh:{self.desc.name}"
+
+    @property
+    def finger_names(self) -> tuple[str, ...]:
+        return self.config.finger_names
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        """The description's joints (`joint_names_of`): the arm's, then the fingers'."""
+        return self._joint_names
+
+    @property
+    def limits(self) -> RobotLimits:
+        return self._limits
+
+    def reset(self, now_s: float) -> RobotState:
+        """Wait for the far end's state and return it.
+
+        A linked robot is not teleported: it stays where it stands (its driver owns homing;
+        `robot-sim` starts at the home pose), and the next command starts from there.
+
+        Raises:
+            InputError: no state within `connect_timeout_s`, or a wrong message.
+        """
+        t0 = time.monotonic()
+        while True:
+            st = self.state(now_s + time.monotonic() - t0)
+            if (
+                st is not None
+                and self._fingers_in.newest() is not None
+                and self._joints_in.newest() is not None
+            ):
+                break
+            if time.monotonic() - t0 > self.config.connect_timeout_s:
+                raise InputError(
+                    f"robot link: no robot state on {self.config.topics.state_pose} within "
+                    f"{self.config.connect_timeout_s:g} s (is the far end running?)"
+                )
+            time.sleep(0.005)
+        self._X_sent, self._t_sent_s = st.X, None
+        return st
+
+    def apply(self, X_cmd: HandState, seq: int, now_s: float) -> None:
+        """Clamp to the limits and publish (module docstring); returns at once."""
+        if X_cmd.n_fingers != len(self.finger_names):
+            raise InputError(
+                f"robot link: {X_cmd.n_fingers} finger values for {len(self.finger_names)} fingers"
+            )
+        period = 1.0 / self.config.rate_hz
+        if self._X_sent is None:
+            st = self.state(now_s)
+            if st is None:
+                raise InputError("robot link: a command before any robot state (call reset first)")
+            self._X_sent = st.X
+        # The speed limit holds over the time since the last command, at most two periods: a
+        # command after a pause does not get the whole pause's distance at once.
+        dt = (
+            period if self._t_sent_s is None else min(max(now_s - self._t_sent_s, 1e-3), 2 * period)
+        )
+        X = self.limits.clamp(self._X_sent, X_cmd, dt)
+        stamp_ns = time.time_ns()
+        self._pose_out.put(
+            ros.encode_pose(X.position, X.rotation, self.config.base_frame, stamp_ns), seq, stamp_ns
+        )
+        self._fingers_out.put(
+            ros.encode_joints(self.finger_names, X.openness, stamp_ns), seq, stamp_ns
+        )
+        self._X_sent, self._t_sent_s, self.last_sent = X, now_s, X
+        self.sent += 1
+
+    def state(self, now_s: float) -> RobotState | None:
+        """The newest measured state, stamped on the loop's clock (its arrival); None before
+        the first. Raises `InputError` once a wrong message arrived on a state topic."""
+        pose = self._pose_in.newest()
+        joints = self._joints_in.newest()
+        fingers = self._fingers_in.newest()
+        if pose is None:
+            return None
+        if pose.msg.frame_id != self.config.base_frame:
+            raise InputError(
+                f"robot link: palm pose in frame {pose.msg.frame_id!r}, expected "
+                f"{self.config.base_frame!r} (base_frame)"
+            )
+        q = self._joints(joints)
+        g = self._openness(fingers)
+        age_s = time.monotonic() - pose.t_recv_mono_s
+        return RobotState(HandState(pose.msg.p_m, pose.msg.R, g), q, now_s - age_s)
+
+    def _joints(self, joints: Received[ros.JointsMsg] | None) -> NDArray[np.float64]:
+        """The measured joints in `joint_names` order (NaN before the first JointState)."""
+        if joints is None:
+            return np.full(len(self._joint_names), np.nan)
+        by_name = dict(zip(joints.msg.names, joints.msg.positions, strict=True))
+        missing = [j for j in self._joint_names if j not in by_name]
+        if missing:
+            raise InputError(
+                f"robot link: {self.config.topics.state_joints} lacks joint {missing[0]!r} of "
+                f"robot {self.desc.name}"
+            )
+        return np.array([by_name[j] for j in self._joint_names], dtype=np.float64)
+
+    def _openness(self, fingers: Received[ros.JointsMsg] | None) -> NDArray[np.float64]:
+        if fingers is None:
+            sent = self._X_sent
+            return np.ones(len(self.finger_names)) if sent is None else sent.openness.copy()
+        by_name = dict(zip(fingers.msg.names, fingers.msg.positions, strict=True))
+        missing = [f for f in self.finger_names if f not in by_name]
+        if missing:
+            raise InputError(
+                f"robot link: {self.config.topics.state_fingers} lacks finger {missing[0]!r}"
+            )
+        return np.clip(np.array([by_name[f] for f in self.finger_names]), 0.0, 1.0)
+
+    def link_status(self, now_s: float) -> str:
+        """ "" while the state is fresh by the loop's rule (`ports.ROBOT_STALE_S`), else why
+        not ("robot lost: no state for 0.4 s"): the loop's verdict, for tools and tests."""
+        st = self.state(now_s)
+        if st is None:
+            return f"{ROBOT_LOST}: no state yet"
+        age = now_s - st.stamp_s
+        return "" if age <= ROBOT_STALE_S else f"{ROBOT_LOST}: no state for {age:.1f} s"
+
+    def describe(self) -> dict[str, Any]:
+        return {
+            "kind": "zenoh",
+            "name": self.desc.name,
+            "description": self.desc.to_dict(),
+            "link": self.config.to_json(),
+        }
+
+    def scene(self) -> SceneGeometry | None:
+        return None
+
+    def close(self) -> None:
+        for c in (
+            self._pose_out,
+            self._fingers_out,
+            self._pose_in,
+            self._joints_in,
+            self._fingers_in,
+        ):
+            c.close()
+        self._session.close()

@@ -1,0 +1,415 @@
+"""The robot link live: real Zenoh sessions on loopback (127.0.0.1) only, `dsteleop robot-sim`
+as a real process at the far end, the near end in this process (`ZenohRobot`) or in a
+child process, processes killed with SIGKILL. No fakes for the link."""
+
+from __future__ import annotations
+
+import json
+import signal
+import socket
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from numpy.typing import NDArray
+
+from dsteleop.app.link import ros
+from dsteleop.app.link.config import Endpoints, LinkConfig, read_link_config
+from dsteleop.app.link.near import ZenohRobot
+from dsteleop.app.link.session import Received, Subscription, Topic, open_session
+from dsteleop.app.ports import ROBOT_LOST
+from dsteleop.arbitration import HandState
+from dsteleop.errors import InputError
+
+pytestmark = pytest.mark.slow
+
+CLI = [sys.executable, "-m", "dsteleop.app.cli.main"]
+READY = "robot-sim: ("  # robot-sim's log line once its session and simulation are up
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def link_file(tmp_path: Path, port: int, **extra: Any) -> Path:
+    ep = f"tcp/127.0.0.1:{port}"
+    data = {"far": {"listen": [ep]}, "near": {"connect": [ep]}, "connect_timeout_s": 5.0, **extra}
+    f = tmp_path / f"link-{port}.json"
+    f.write_text(json.dumps(data))
+    return f
+
+
+class Far:
+    """`dsteleop robot-sim` in a child process; its stderr collected in a thread."""
+
+    def __init__(self, config: Path) -> None:
+        self.proc = subprocess.Popen(
+            [*CLI, "robot-sim", "--zenoh", str(config)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        self.lines: list[str] = []
+        self._ready = threading.Event()
+        threading.Thread(target=self._read, daemon=True).start()
+        if not self._ready.wait(120):
+            self.proc.kill()
+            raise AssertionError("robot-sim did not start: " + "".join(self.lines))
+
+    def _read(self) -> None:
+        assert self.proc.stderr is not None
+        for line in self.proc.stderr:
+            self.lines.append(line)
+            if READY in line:
+                self._ready.set()
+
+    def terminate(self) -> dict[str, Any]:
+        """SIGTERM; robot-sim's JSON summary."""
+        self.proc.send_signal(signal.SIGTERM)
+        out, _ = self.proc.communicate(timeout=30)
+        assert self.proc.returncode == 0, "".join(self.lines)
+        result: dict[str, Any] = json.loads(out.strip().splitlines()[-1])
+        return result
+
+    def kill(self) -> None:
+        self.proc.kill()
+        self.proc.wait()
+
+
+def drive(robot: ZenohRobot, X0: HandState, seconds: float, t0: float, seq0: int = 0) -> int:
+    """Command a side-to-side palm motion (5 cm amplitude, 1 Hz) at 30 Hz; the next seq."""
+    k = seq0
+    t_end = time.monotonic() + seconds
+    while time.monotonic() < t_end:
+        dy = 0.05 * np.sin(2 * np.pi * (time.monotonic() - t0))
+        robot.apply(
+            HandState(X0.position + np.array([0.0, dy, 0.0]), X0.rotation, X0.openness),
+            k,
+            time.monotonic() - t0,
+        )
+        k += 1
+        time.sleep(1 / 30)
+    return k
+
+
+def test_far_end_killed_is_lost_within_the_timeout_and_picked_up_again(tmp_path):
+    cfg = link_file(tmp_path, free_port())
+    far = Far(cfg)
+    robot = ZenohRobot(read_link_config(cfg))
+    try:
+        t0 = time.monotonic()
+        st = robot.reset(0.0)
+        assert st.X.position.shape == (3,) and len(robot.joint_names) == st.joints.size > 7
+        assert robot.link_status(time.monotonic() - t0) == ""
+        y0 = st.X.position[1]
+        seq = drive(robot, st.X, 1.5, t0)
+        moved = robot.state(time.monotonic() - t0)
+        assert moved is not None
+        # the far end applied the commands: the palm swung sideways
+        ys = []
+        for _ in range(30):
+            s = robot.state(time.monotonic() - t0)
+            assert s is not None
+            ys.append(s.X.position[1])
+            seq = drive(robot, st.X, 1 / 30, t0, seq)
+        assert max(abs(y - y0) for y in ys) > 0.01
+
+        far.kill()
+        t_kill = time.monotonic()
+        while (status := robot.link_status(time.monotonic() - t0)) == "":
+            assert time.monotonic() - t_kill < 1.0
+            time.sleep(0.002)
+        t_lost = time.monotonic() - t_kill
+        assert status.startswith(ROBOT_LOST)
+        assert t_lost <= 0.2 + 0.02, t_lost  # the state's age passes 0.2 s <= 0.2 s after
+
+        far = Far(cfg)
+        t_restart = time.monotonic()
+        while robot.link_status(time.monotonic() - t0) != "":
+            assert time.monotonic() - t_restart < 10.0, "the restarted far end was not picked up"
+            time.sleep(0.01)
+        drive(robot, st.X, 0.5, t0, seq)
+        assert far.terminate()["applied"] > 0
+    finally:
+        robot.close()
+        if far.proc.poll() is None:
+            far.kill()
+
+
+NEAR_SCRIPT = textwrap.dedent(
+    """
+    import sys, time
+    import numpy as np
+    from dsteleop.app.link.config import read_link_config
+    from dsteleop.app.link.near import ZenohRobot
+    from dsteleop.arbitration import HandState
+    robot = ZenohRobot(read_link_config(sys.argv[1]))
+    t0 = time.monotonic()
+    X0 = robot.reset(0.0).X
+    print("driving", flush=True)
+    k = 0
+    while True:
+        dy = 0.08 * np.sin(2 * np.pi * 0.5 * (time.monotonic() - t0))
+        robot.apply(HandState(X0.position + np.array([0.0, dy, 0.0]), X0.rotation, X0.openness), k,
+                    time.monotonic() - t0)
+        k += 1
+        time.sleep(1 / 30)
+    """
+)
+
+
+def test_near_end_killed_halts_the_far_ends_robot(tmp_path):
+    port = free_port()
+    cfg = link_file(tmp_path, port)
+    far = Far(cfg)
+    config = LinkConfig()
+    session = open_session(Endpoints(connect=(f"tcp/127.0.0.1:{port}",)), 5.0, "observer")
+    states: list[tuple[float, NDArray[np.float64]]] = []
+
+    def keep(rec: Received[ros.PoseMsg]) -> None:
+        states.append((rec.t_recv_mono_s, rec.msg.p_m))
+
+    sub = Subscription(
+        session, 0, config.topics.state_pose, ros.POSE_STAMPED, ros.decode_pose, keep
+    )
+    near = subprocess.Popen(
+        [sys.executable, "-c", NEAR_SCRIPT, str(cfg)], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert near.stdout is not None and near.stdout.readline().strip() == "driving"
+        time.sleep(1.5)
+        near.kill()
+        near.wait()
+        t_kill = time.monotonic()
+        time.sleep(1.0)
+        summary = far.terminate()
+    finally:
+        sub.close()
+        session.close()
+        if near.poll() is None:
+            near.kill()
+        if far.proc.poll() is None:
+            far.kill()
+    assert summary["halted"] and summary["halt_reason"].startswith("no command for")
+    halt = [ln for ln in far.lines if "halted, no command for" in ln]
+    assert len(halt) == 1, far.lines
+    # the watchdog fires once no command came for 0.2 s (it wakes for it, not at the next tick)
+    assert float(halt[0].split("no command for ")[1].split(" s")[0]) <= 0.2 + 0.02
+    t = np.array([s[0] for s in states]) - t_kill
+    p = np.array([s[1] for s in states])
+    v = np.linalg.norm(np.diff(p, axis=0), axis=1) / np.maximum(np.diff(t), 1e-3)
+    before = v[(t[1:] > -1.0) & (t[1:] < -0.1)]
+    after = v[t[1:] > 0.35]
+    assert before.max() > 0.05, before  # it was moving (up to 0.25 m/s)
+    assert after.size > 10 and after.max() < 0.005, after  # and stands still
+
+
+def test_stale_and_out_of_order_commands_are_dropped(tmp_path):
+    port = free_port()
+    cfg = link_file(tmp_path, port)
+    far = Far(cfg)
+    config = LinkConfig()
+    session = open_session(Endpoints(connect=(f"tcp/127.0.0.1:{port}",)), 5.0, "test")
+    pose = Topic(session, 0, config.topics.command_pose, ros.POSE_STAMPED)
+    p, R = np.array([0.58, 0.30, 0.50]), np.diag([-1.0, 1.0, -1.0])
+    time.sleep(0.5)  # the subscription reaches the far end
+    try:
+        for seq, age_s in [(1, 0.0), (2, 1.0), (3, 0.5), (10, 0.0), (5, 0.0), (10, 0.0), (11, 0.0)]:
+            stamp = time.time_ns() - int(age_s * 1e9)
+            pose.put(ros.encode_pose(p, R, "base", stamp), seq, stamp)
+            time.sleep(0.05)
+        time.sleep(0.2)
+        summary = far.terminate()
+    finally:
+        pose.close()
+        session.close()
+        if far.proc.poll() is None:
+            far.kill()
+    assert summary["dropped_stale"] == 2  # seq 2 and 3: 1 s and 0.5 s old
+    assert summary["dropped_out_of_order"] == 2  # seq 5 after 10, and 10 again
+    assert summary["applied"] == 3  # seq 1, 10, 11
+
+
+def test_unreachable_endpoint_and_port_in_use_are_one_line_exit_2(tmp_path):
+    port = free_port()  # nobody listens there
+    bad = tmp_path / "bad.json"
+    ep = f"tcp/127.0.0.1:{port}"
+    bad.write_text(json.dumps({"far": {"connect": [ep]}, "connect_timeout_s": 0.5}))
+    r = subprocess.run([*CLI, "robot-sim", "--zenoh", str(bad)], capture_output=True, text=True)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    errors = [ln for ln in r.stderr.splitlines() if "error:" in ln]
+    assert errors == [
+        f"dsteleop robot-sim: error: robot link (far end): no answer from {ep} within 0.5 s "
+        "(is the other end running?)"
+    ], r.stderr
+    with pytest.raises(InputError, match=r"near end\): no answer from .* within 0.5 s"):
+        ZenohRobot(LinkConfig(near=Endpoints(connect=(ep,)), connect_timeout_s=0.5))
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", port))
+        s.listen()
+        busy = tmp_path / "busy.json"
+        busy.write_text(json.dumps({"far": {"listen": [ep]}}))
+        r = subprocess.run(
+            [*CLI, "robot-sim", "--zenoh", str(busy)], capture_output=True, text=True
+        )
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    errors = [ln for ln in r.stderr.splitlines() if "error:" in ln]
+    assert len(errors) == 1 and f"cannot open a Zenoh session on {ep}" in errors[0], r.stderr
+
+
+def test_a_message_of_the_wrong_type_is_one_line_exit_2(tmp_path):
+    port = free_port()
+    cfg = link_file(tmp_path, port)
+    far = Far(cfg)
+    config = LinkConfig()
+    session = open_session(Endpoints(connect=(f"tcp/127.0.0.1:{port}",)), 5.0, "test")
+    # a JointState on the pose command topic (its own, correct key expression)
+    wrong = Topic(session, 0, config.topics.command_pose, ros.JOINT_STATE)
+    time.sleep(0.5)
+    try:
+        stamp = time.time_ns()
+        wrong.put(ros.encode_joints(("a",), np.zeros(1), stamp), 1, stamp)
+        far.proc.wait(timeout=30)
+    finally:
+        wrong.close()
+        session.close()
+        if far.proc.poll() is None:
+            far.kill()
+    assert far.proc.returncode == 2
+    text = "".join(far.lines)
+    assert "Traceback" not in text
+    errors = [ln for ln in far.lines if "error:" in ln]
+    assert errors == [
+        "dsteleop robot-sim: error: robot link: topic /dsteleop/palm_pose_command carries "
+        "sensor_msgs::msg::dds_::JointState_, expected geometry_msgs::msg::dds_::PoseStamped_ "
+        "(geometry_msgs/msg/PoseStamped)\n"
+    ], text
+
+    # the near end: a PoseStamped on the joints topic, from a real session it connects to
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    listener = open_session(Endpoints(listen=(ep,)), 5.0, "test")
+    robot = ZenohRobot(LinkConfig(near=Endpoints(connect=(ep,))))
+    try:
+        out = Topic(listener, 0, config.topics.state_joints, ros.POSE_STAMPED)
+        time.sleep(0.5)
+        stamp = time.time_ns()
+        out.put(ros.encode_pose(np.zeros(3), np.eye(3), "base", stamp), 1, stamp)
+        t0 = time.monotonic()
+        with pytest.raises(InputError, match="carries geometry_msgs::msg::dds_::PoseStamped_"):
+            while time.monotonic() - t0 < 5.0:
+                robot.state(0.0)
+                time.sleep(0.01)
+        out.close()
+    finally:
+        robot.close()
+        listener.close()
+
+
+def test_run_drives_the_demo_over_the_link(tmp_path):
+    cfg = link_file(tmp_path, free_port())
+    far = Far(cfg)
+    try:
+        r = subprocess.run(
+            [*CLI, "run", "--source", "demo", "--seed", "0", "--robot", f"zenoh:{cfg}"],
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        time.sleep(0.5)  # more than the far end's 0.2 s watchdog after the last command
+        summary = far.terminate()
+    finally:
+        if far.proc.poll() is None:
+            far.kill()
+    assert r.returncode == 0, r.stderr
+    result = json.loads(r.stdout.strip().splitlines()[-1])
+    # the task judged the far end's arm through its twin here; an outcome was decided
+    assert result["stopped_by"] == "outcome" and result["outcome"] in ("success", "failure")
+    assert any(e.split(":")[1] == "grasp" for e in result["events"]), result["events"]
+    assert summary["applied"] > 0.9 * result["ticks"]
+    assert result["robot_lost_ticks"] < 0.05 * result["ticks"]
+    # the near end stopped commanding at the outcome: the far end's watchdog halted the arm
+    assert summary["halted"]
+
+
+def test_run_with_a_bad_robot_or_no_far_end_is_one_line_exit_2(tmp_path):
+    r = subprocess.run([*CLI, "run", "--robot", "zenoh:"], capture_output=True, text=True)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "configuration file is missing" in r.stderr
+    bad = tmp_path / "bad-robot.json"
+    bad.write_text(json.dumps({"robot": "panda7"}))
+    for cmd in (["run"], ["robot-sim", "--zenoh", str(bad)]):
+        robot = ["--robot", f"zenoh:{bad}"] if cmd == ["run"] else []
+        r = subprocess.run([*CLI, *cmd, *robot], capture_output=True, text=True)
+        assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+        assert "panda7" in r.stderr and "Traceback" not in r.stderr
+    cfg = tmp_path / "link.json"
+    cfg.write_text(
+        json.dumps(
+            {"near": {"connect": [f"tcp/127.0.0.1:{free_port()}"]}, "connect_timeout_s": 0.5}
+        )
+    )
+    r = subprocess.run(
+        [*CLI, "run", "--source", "demo", "--robot", f"zenoh:{cfg}"], capture_output=True, text=True
+    )
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    errors = [ln for ln in r.stderr.splitlines() if "error:" in ln]
+    assert len(errors) == 1 and "no answer from" in errors[0], r.stderr
+
+
+def test_serve_builds_the_linked_robot_with_its_twin_and_shows_it_lost(tmp_path):
+    """What `serve --robot zenoh:CONFIG` builds (compose.build, live, with scene poses): the
+    page's scene is the twin's kitchen, the loop's ticks carry its poses, a killed far end
+    shows red as "lost: robot lost" on the page within 0.2 s (+ ticks), and a restarted one
+    is driven again."""
+    from dsteleop.app.cli.compose import build
+    from dsteleop.app.cli.options import LoopOptions
+    from dsteleop.app.plants.kitchen import KitchenTask
+    from dsteleop.app.session.schema import Status
+    from dsteleop.app.viewer.panel import status_view
+
+    cfg = link_file(tmp_path, free_port(), robot="panda")
+    far = Far(cfg)
+    built = build(LoopOptions.of("demo", robot=f"zenoh:{cfg}"), realtime=True, export_scene=True)
+    loop = built.loop
+    try:
+        assert isinstance(loop.robot, ZenohRobot) and loop.robot.name == "zenoh:panda"
+        assert isinstance(loop.task, KitchenTask) and loop.task.twin
+        assert loop.task.scene() is not None
+        assert loop.session_meta()["robot"]["description"]["name"] == "panda"
+
+        def ticks(seconds: float) -> list[Any]:
+            out = []
+            t_end = loop.clock.now() + seconds
+            while (now := loop.clock.now()) < t_end:
+                out.append(loop.tick(now))
+                loop.clock.sleep_until(now + 1 / 30)
+            return out
+
+        records = ticks(1.0)
+        assert records[-1].plant.scene is not None and records[-1].reason != ROBOT_LOST
+        far.kill()
+        t_kill = loop.clock.now()
+        records = ticks(1.0)
+        lost = [r for r in records if r.reason == ROBOT_LOST]
+        assert lost and lost[0].t_s - t_kill <= 0.2 + 2 / 30 + 0.05, lost[0].t_s - t_kill
+        assert all(r.status is Status.LOST for r in lost)
+        view = status_view(lost[-1])
+        assert (view.word, view.detail) == ("lost", ROBOT_LOST)
+        far = Far(cfg)
+        t_restart = time.monotonic()
+        while loop.tick(loop.clock.now()).reason == ROBOT_LOST:
+            assert time.monotonic() - t_restart < 10.0, "the restarted far end was not picked up"
+            time.sleep(1 / 30)
+        assert far.terminate()["applied"] > 0
+    finally:
+        built.close()
+        if far.proc.poll() is None:
+            far.kill()
