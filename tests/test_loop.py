@@ -65,7 +65,7 @@ def run(loop: TeleopLoop, seconds: float, t0: float = 0.0) -> list[TickRecord]:
     return out
 
 
-def speeds(records: list[TickRecord]) -> np.ndarray:  # type: ignore[type-arg]
+def speeds(records: list[TickRecord]) -> np.ndarray:
     p = np.array([r.X_current.position for r in records])
     return np.linalg.norm(np.diff(p, axis=0), axis=1) / DT
 

@@ -49,13 +49,15 @@ def test_cv2_comes_from_the_headless_build_only() -> None:
             md.distribution(other)
 
 
-def test_mediapipe_is_the_pinned_release_with_bundled_hand_models() -> None:
-    import mediapipe as mp
+def test_mediapipe_is_the_pinned_release() -> None:
+    """The release pyproject.toml pins exactly (and whose metadata it restates)."""
+    tomllib = pytest.importorskip("tomllib")  # Python 3.11+
 
-    assert md.version("mediapipe") == "0.10.21"
-    models = Path(mp.__file__).parent / "modules" / "hand_landmark"
-    assert any(models.glob("hand_landmark_full.tflite")), "full hand model missing from the wheel"
-    assert any(models.glob("hand_landmark_lite.tflite")), "lite hand model missing from the wheel"
+    project = tomllib.loads((REPO / "pyproject.toml").read_text())
+    assert "mediapipe==1.2.3" in project["project"]["dependencies"]
+    assert md.version("mediapipe") == "1.2.3"
+    (override,) = project["tool"]["uv"]["dependency-metadata"]
+    assert (override["name"], override["version"]) == ("mediapipe", "1.2.3")
 
 
 #: Prints the `dsteleop --help` and `dsteleop run --help` texts, then the heavy modules they

@@ -96,7 +96,9 @@ def test_round_trip_under_detector_noise() -> None:
     """
     rng = np.random.default_rng(3)
     noise = LandmarkNoise(image_px=1.0, world_m=0.002)
-    rel, ang, dg = [], [], []
+    rel: list[float] = []
+    ang: list[float] = []
+    dg: list[float] = []
     for i in range(500):
         p, R, g = random_pose(rng)
         hand: Handedness = "Right" if i % 2 else "Left"

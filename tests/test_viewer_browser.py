@@ -147,7 +147,9 @@ def _scene_drawn(page: Page) -> bool:
     import cv2
 
     png = page.locator("canvas").first.screenshot()
-    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR).astype(int)
+    decoded = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+    assert decoded is not None
+    img = decoded.astype(int)
     b, g, r = img[..., 0], img[..., 1], img[..., 2]
     orange = (r > 180) & (g > 60) & (g < 160) & (b < 90)
     blue = (b > 170) & (r < 150)
@@ -211,8 +213,10 @@ def test_controls_in_the_page_reach_the_loop(served: str, browser: Browser) -> N
         _wait(lambda: _status(page)["mode"] == "manual", 20.0, "the loop in manual mode", page)
         # Manual gives the operator everything on every dimension, once arbitrating.
         _wait(
-            lambda: _status(page)["status"] != "tracking"
-            or all(v["alpha"] == 0.0 for v in _gauges(page).values()),
+            lambda: (
+                _status(page)["status"] != "tracking"
+                or all(v["alpha"] == 0.0 for v in _gauges(page).values())
+            ),
             20.0,
             "alpha = 0 everywhere",
             page,

@@ -436,7 +436,7 @@ class ClosedLoopOperator:
         last = it.n_stages[idx] - 1
         targets, tols = it.of_rows(idx, r.settled[idx])
         errs, es = self._stage_errors(idx, seen, targets)
-        within_all = (errs <= tols).all(axis=-1)  # (n, S)
+        within_all = np.asarray((errs <= tols).all(axis=-1), dtype=np.bool_)  # (n, S)
         n = np.arange(idx.size)
         st = r.stage[idx]
         # Stages passed at once are skipped in the same plan; so is a stage whose next one
@@ -506,11 +506,11 @@ class ClosedLoopOperator:
         # Clutching: a hand already open cannot open the robot's fingers further under the
         # rate mapping; the person closes it fully first, then opens it again (next plan).
         if D > 6:
-            g = r.hand.openness[g_idx]
+            g_open = r.hand.openness[g_idx]
             lacking = e[sel][:, FING] > tol[sel, 2:3]  # the robot's finger is not open enough
-            stuck = lacking & (g + delta[:, FING] > 1.0 + 1e-6) & (g > 0.9)
+            stuck = lacking & (g_open + delta[:, FING] > 1.0 + 1e-6) & (g_open > 0.9)
             if stuck.any():
-                delta[:, FING] = np.where(stuck, -g, delta[:, FING])
+                delta[:, FING] = np.where(stuck, -g_open, delta[:, FING])
         amp = np.stack(
             [
                 np.linalg.norm(delta[:, TRANS], axis=1),

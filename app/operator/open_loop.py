@@ -292,7 +292,7 @@ def sample_trajectory(
     opn = g0 + _progress(tau, windows[4])[:, None] * (gT - g0)
     states = HandState(pos, rot, opn)
     sample = OperatorSample(target, lead, windows, float(move_s), pauses, reaction_s, hold_s)
-    return OperatorTrajectory(t, states, sample)
+    return OperatorTrajectory(np.asarray(t, dtype=np.float64), states, sample)
 
 
 def stack(trajectories: Sequence[OperatorTrajectory]) -> tuple[HandState, NDArray[np.int64]]:

@@ -30,6 +30,10 @@ from dsteleop.robot.scene import SceneGeometry
 
 log = logging.getLogger(__name__)
 
+#: How long `close` waits for a `--rerun-connect` viewer to take what is left [s] (an absent
+#: viewer must not hold the process).
+FLUSH_TIMEOUT_S = 0.5
+
 
 class RerunLogger:
     """The loop's Rerun observer (module docstring).
@@ -81,8 +85,9 @@ class RerunLogger:
                     "what this run sends is kept in memory and lost at the end unless one starts",
                     target.connect,
                 )
-            # Rerun's client sends from its own thread and buffers while no viewer is there.
-            self.rec.connect_grpc(target.connect, flush_timeout_sec=0.5)
+            # Rerun's client sends from its own thread and buffers while no viewer is there;
+            # `close` waits for it at most FLUSH_TIMEOUT_S.
+            self.rec.connect_grpc(target.connect)
         self.rec.send_blueprint(rlog.blueprint([layout.LIVE_ROOT], camera=True))
         if scene is not None:
             rlog.log_scene_geometry(self.rec, layout.LIVE_ROOT, scene)
@@ -176,7 +181,13 @@ class RerunLogger:
             self._cond.notify_all()
         self._thread.join(timeout=30.0)
         try:
-            self.rec.flush()
+            if self.target.connect is None:
+                self.rec.flush()
+            else:
+                try:
+                    self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+                except Exception as e:  # Rerun raises on the timeout; its type is not public
+                    log.warning("rerun: the viewer did not take everything in time (%s)", e)
         finally:
             self.rec.disconnect()
         stats = {"received": self.received, "logged": self.logged, "dropped": self.dropped}

@@ -38,10 +38,9 @@ def xyzw(R: Array) -> Array:
     return np.concatenate([q[..., 1:], q[..., :1]], axis=-1)
 
 
-def _quat(q_xyzw: Any) -> Any:
-    """A quaternion (x, y, z, w) for `rr.Transform3D` as a plain float32 array: rerun-sdk
-    0.23's `rr.Quaternion` does not convert under numpy 1.x (it asks numpy 2's `copy=`)."""
-    return np.asarray(q_xyzw, dtype=np.float32)
+def _quat(q_xyzw: Any) -> rr.Quaternion:
+    """A quaternion (x, y, z, w) for `rr.Transform3D`."""
+    return rr.Quaternion(xyzw=np.asarray(q_xyzw, dtype=np.float32))
 
 
 def _send_poses(rec: rr.RecordingStream, path: str, t_s: Array, p: Array, R: Array) -> None:
@@ -175,15 +174,15 @@ def _shape(v: VisualGeometry) -> Any:
         return rr.Boxes3D(half_sizes=[[s / 2 for s in v.size_m]], colors=[rgba], fill_mode="solid")
     if v.kind == "sphere":
         return rr.Ellipsoids3D(radii=[v.size_m[0]], colors=[rgba], fill_mode="solid")
-    if v.kind in ("cylinder", "capsule"):
-        # Rerun 0.23 has no cylinder: a capsule of the same radius whose ends are flat in
-        # the scene's scale (centred, along the local z axis).
+    if v.kind == "cylinder":
+        # Centred, along the local z axis (as in PyBullet).
+        r, length = v.size_m[0], v.size_m[1]
+        return rr.Cylinders3D(lengths=[length], radii=[r], colors=[rgba], fill_mode="solid")
+    if v.kind == "capsule":
+        # Rerun's capsule starts at its translation; PyBullet's is centred (local z axis).
         r, length = v.size_m[0], v.size_m[1]
         return rr.Capsules3D(
-            lengths=[max(length - (2 * r if v.kind == "cylinder" else 0.0), 0.0)],
-            radii=[r],
-            translations=[[0.0, 0.0, -max(length / 2 - (r if v.kind == "cylinder" else 0.0), 0.0)]],
-            colors=[rgba],
+            lengths=[length], radii=[r], translations=[[0.0, 0.0, -length / 2]], colors=[rgba]
         )
     if v.kind == "mesh" and v.mesh_path:
         return rr.Asset3D(path=v.mesh_path, albedo_factor=rgba)
@@ -200,7 +199,8 @@ def log_true_goals(rec: rr.RecordingStream, plant_meta: dict[str, Any]) -> None:
         R = np.asarray(g["R"], dtype=np.float64).reshape(3, 3)
         rec.log(
             layout.goal_true(name),
-            rr.Transform3D(translation=p, quaternion=_quat(xyzw(R)), axis_length=AXIS_LENGTH_M),
+            rr.Transform3D(translation=p, quaternion=_quat(xyzw(R))),
+            rr.TransformAxes3D(axis_length=AXIS_LENGTH_M),
             static=True,
         )
 

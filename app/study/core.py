@@ -712,7 +712,7 @@ def example(cfg: SimConfig, index: int, mode: Mode) -> Example:
         **{k: np.stack([getattr(s, k)[0] for s in first]) for k in STEP_ARRAYS},
         X_next=stack_states([s.X_next.take(0) for s in first]),
     )
-    t = np.arange(L) * cfg.dt_s
+    t = np.arange(L, dtype=np.float64) * np.float64(cfg.dt_s)
     tr = Trace(
         name=f"trajectory {index}",
         mode=mode,
@@ -1284,7 +1284,8 @@ def summarise(res: StudyResult, figures: StudyResult | None = None) -> dict[str,
             "closed_loop": cfg.closed_loop,
             "lead_share": float(res.lead.mean()),
             "trial_s": {
-                name: _describe((r.lengths - 1) * cfg.dt_s) for name, r in res.modes.items()
+                name: _describe(np.asarray((r.lengths - 1) * cfg.dt_s, dtype=np.float64))
+                for name, r in res.modes.items()
             },
         },
         "config": cfg.to_dict(),
