@@ -94,3 +94,28 @@ def test_video_mode_takes_repeated_and_backward_frame_times() -> None:
             assert detector.detect(blank, t_s) == []
     finally:
         detector.close()
+
+
+def test_track_with_a_damaged_shipped_model_is_one_line_and_exit_2(
+    shared_data: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """`dsteleop track` on a real video when the installed model file has been altered: the
+    digest check (the real one, on a damaged copy) stops it before MediaPipe loads."""
+    from dsteleop.app.cli.main import main
+    from dsteleop.tracking import models
+
+    folder = _copy(tmp_path)
+    data = bytearray((folder / MODEL_FILE).read_bytes())
+    data[-1] ^= 0xFF
+    (folder / MODEL_FILE).write_bytes(bytes(data))
+    check = models.hand_model_bytes
+    monkeypatch.setattr(models, "hand_model_bytes", lambda folder_=None: check(folder))
+    video = shared_data / "videos" / "webcam_two_hands.mp4"
+    code = main(["track", str(video), "--out", str(tmp_path / "o.jsonl"), "--max-frames", "5"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and "Traceback" not in "\n".join(err)
+    assert err[-1].startswith("dsteleop track: error: the hand landmark model"), err[-1]
+    assert "is damaged" in err[-1] and "reinstall dsteleop" in err[-1]
