@@ -119,3 +119,41 @@ def test_track_with_a_damaged_shipped_model_is_one_line_and_exit_2(
     assert code == 2 and "Traceback" not in "\n".join(err)
     assert err[-1].startswith("dsteleop track: error: the hand landmark model"), err[-1]
     assert "is damaged" in err[-1] and "reinstall dsteleop" in err[-1]
+
+
+#: In a fresh interpreter: a tracker with a detector that finds nothing (no MediaPipe) warms
+#: up, then tracks a synthetic hand; prints which compiled SO(3) functions the warm-up loaded
+#: and whether the first sample after it starts its filters afresh (filtered == raw).
+WARM_UP_PROBE = """
+import numpy as np
+from dsteleop.arbitration import se3
+from dsteleop.tracking import Frame, HandTracker, synthesize_detection, palm_facing_camera
+class NoHands:
+    def detect(self, image, t_s):
+        assert image.shape == (480, 640, 3)
+        return []
+    def close(self):
+        pass
+tracker = HandTracker(detector=NoHands())
+before = [bool(f.signatures) for f in (se3._exp_batch, se3._log_relative_batch)]
+tracker.warm_up(640, 480)
+after = [bool(f.signatures) for f in (se3._exp_batch, se3._log_relative_batch)]
+hand = synthesize_detection(np.array([0.1, 0.0, 0.6]), palm_facing_camera(), np.ones(5),
+                            tracker.intrinsics(640, 480))
+s = tracker.process(Frame(0, 10.0, 640, 480, detections=(hand,)))
+fresh = bool(np.allclose(s.p_cam_palm_m, s.raw_p_cam_palm_m))
+print(before, after, fresh)
+"""
+
+
+def test_warm_up_loads_the_filters_compiled_maths_and_leaves_no_state() -> None:
+    """The orientation filter's compiled SO(3) functions load at their first call (0.5-2 s):
+    `warm_up` makes that call, so it does not fall on the second frame with a hand."""
+    import subprocess
+    import sys
+
+    out = subprocess.run(
+        [sys.executable, "-c", WARM_UP_PROBE], capture_output=True, text=True, timeout=600
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split("\n")[-2] == "[False, False] [True, True] True", out.stdout
