@@ -4,6 +4,8 @@
       ConfigError        a setting or hyper-parameter out of its domain (the message names it)
       InputError         bad input: a missing, corrupt or unsupported file, a camera that
                          does not open, a malformed session, a port in use
+        ModelFileError   the hand model shipped in the package is missing or not the file
+                         its sha256 names (a broken install)
 
 Anything else that escapes is a bug and keeps its traceback.
 """
@@ -19,3 +21,7 @@ class ConfigError(DsteleopError, ValueError):
 
 class InputError(DsteleopError):
     """Input the program cannot use: a file, a camera, a session, an address."""
+
+
+class ModelFileError(InputError):
+    """The model file shipped in the package is missing or does not match its sha256."""

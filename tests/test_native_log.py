@@ -17,7 +17,16 @@ import pytest
 from dsteleop.app.cli.native_log import is_native_line
 
 CLI = [sys.executable, "-m", "dsteleop.app.cli.main"]
-NATIVE_STARTS = ("W0000", "I0000", "E0000", "INFO: Created", "WARNING: All log", "pybullet build")
+NATIVE_STARTS = (
+    "W0000",
+    "I0000",
+    "E0000",
+    "INFO: Created",
+    "INFO: [",
+    "WARNING: All log",
+    "WARNING: Logging before",
+    "pybullet build",
+)
 
 
 def test_native_line_shapes() -> None:
@@ -25,6 +34,8 @@ def test_native_line_shapes() -> None:
         "W0000 00:00:1796178255.381955    1672 inference_feedback_manager.cc:114] Feedback",
         "INFO: Created TensorFlow Lite XNNPACK delegate for CPU.",
         "WARNING: All log messages before absl::InitializeLog() is called are written to STDERR",
+        "INFO: [accelerator_registry.cc:43] DestroyAccelerator: ptr=0x7ff5, name=CpuAccelerator",
+        "WARNING: Logging before InitGoogle() is written to STDERR",
         "[mov,mp4,m4a,3gp,3g2,mj2 @ 0x55df907192c0] moov atom not found",
         "[ WARN:0@0.019] global cap.cpp:779 open VIDEOIO(CV_IMAGES): raised OpenCV exception:",
         "pybullet build time: Nov 28 2023 23:45:17",

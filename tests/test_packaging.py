@@ -4,6 +4,7 @@ package data, no top-level name collisions, headless cv2, an instant `--help`.""
 from __future__ import annotations
 
 import importlib.metadata as md
+import json
 import os
 import shutil
 import subprocess
@@ -21,6 +22,17 @@ REQUIRED_SUBPACKAGES = {
     "bench", "cli", "inputs", "loop", "plants", "replay", "session", "study", "viewer",
 }  # fmt: skip
 WEB_ASSETS = ("dsteleop.css", "gauge_row.html", "status.html", "gauges_head.html")
+#: The hand landmark model and the files beside it (tracking/models), as package data.
+MODEL_FILES = ("hand_landmarker.task", "hand_landmarker.task.sha256", "LICENSE", "NOTICE")
+SHARED_VIDEO = REPO.parent / "shared" / "data" / "videos" / "open_hand_wave_landscape.mp4"
+#: Blocks every socket in the process it runs in (prepended to the offline probes).
+NO_SOCKETS = """
+import socket
+def _refuse(*args, **kwargs):
+    raise OSError("network use in an offline test")
+socket.socket.connect = socket.socket.connect_ex = _refuse
+socket.create_connection = socket.getaddrinfo = _refuse
+"""
 
 
 def test_the_package_list_names_every_app_subpackage() -> None:
@@ -34,6 +46,7 @@ def test_the_package_list_names_every_app_subpackage() -> None:
     missing = {f"dsteleop.app.{n}" for n in APP_SUBPACKAGES} - listed
     assert not missing, f"not in [tool.setuptools] packages: {sorted(missing)}"
     assert "dsteleop.web_assets" in listed
+    assert "dsteleop.tracking.models" in listed
     for name in WEB_ASSETS:
         assert (REPO / "web_assets" / name).is_file(), name
 
@@ -58,6 +71,16 @@ def test_mediapipe_is_the_pinned_release() -> None:
     assert md.version("mediapipe") == "1.2.3"
     (override,) = project["tool"]["uv"]["dependency-metadata"]
     assert (override["name"], override["version"]) == ("mediapipe", "1.2.3")
+
+
+def test_mediapipe_has_the_tasks_hand_landmarker() -> None:
+    """The tracker's one code path (tracking/detector.py): the Tasks API; its model comes from this package, not from the mediapipe wheel."""
+    import importlib
+
+    vision = importlib.import_module("mediapipe.tasks.python.vision")
+    for name in ("HandLandmarker", "HandLandmarkerOptions", "RunningMode"):
+        assert hasattr(vision, name), name
+    assert hasattr(importlib.import_module("mediapipe.tasks.python"), "BaseOptions")
 
 
 #: Prints the `dsteleop --help` and `dsteleop run --help` texts, then the heavy modules they
@@ -129,6 +152,12 @@ def test_wheel_installs_in_a_fresh_environment_and_runs(tmp_path: Path) -> None:
     robots = {f"dsteleop/robot/robots/{p.name}" for p in (REPO / "robot/robots").glob("*.toml")}
     assert {"dsteleop/robot/robots/iiwa.toml", "dsteleop/robot/robots/panda.toml"} <= robots
     assert robots | {"dsteleop/robot/assets/dsteleop_hand.urdf"} <= names
+    # The hand landmark model, byte for byte, with its digest, license and notice.
+    model_files = {f"dsteleop/tracking/models/{m}" for m in MODEL_FILES}
+    assert model_files <= names, sorted(model_files - names)
+    for m in MODEL_FILES:
+        member = zipfile.ZipFile(wheel).read(f"dsteleop/tracking/models/{m}")
+        assert member == (REPO / "tracking" / "models" / m).read_bytes(), m
 
     # The locked dependency set, then the wheel alone, into a new virtualenv.
     req = tmp_path / "requirements.txt"
@@ -189,4 +218,48 @@ def test_wheel_installs_in_a_fresh_environment_and_runs(tmp_path: Path) -> None:
         assert help_out.returncode == 0, help_out.stderr
         assert ("bench" if argv == ["--help"] else "--max-seconds") in help_out.stdout
         assert BANNER not in help_out.stdout + help_out.stderr
+    check_model_offline(py, venv, tmp_path, env)
     shutil.rmtree(venv)
+
+
+def offline(argv: list[str]) -> list[str]:
+    """`argv` in a network namespace of its own (no interface but loopback) where the
+    machine allows it (`unshare -rn`); the probes also block sockets themselves."""
+    unshare = shutil.which("unshare")
+    if unshare and subprocess.run([unshare, "-rn", "true"], capture_output=True).returncode == 0:
+        return [unshare, "-rn", *argv]
+    return argv
+
+
+def check_model_offline(py: Path, venv: Path, cwd: Path, env: dict[str, str]) -> None:
+    """The installed wheel loads its own hand model (digest checked) and MediaPipe runs it,
+    with no network: on a real video frame when the test data is there, else a blank one."""
+    probe = NO_SOCKETS + (
+        "import numpy as np\n"
+        "from dsteleop.tracking import DetectorConfig, make_detector\n"
+        "import dsteleop.tracking.models as m\n"
+        "assert '/site-packages/dsteleop/tracking/models/' in m.__file__, m.__file__\n"
+        "assert len(m.hand_model_bytes()) == 7_819_105\n"
+        "d = make_detector(DetectorConfig())\n"
+        "print(d.detect(np.zeros((240, 320, 3), np.uint8), 0.0))\n"
+    )
+    run = subprocess.run(
+        offline([str(py), "-c", probe]), cwd=cwd, capture_output=True, text=True, env=env
+    )
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert run.stdout.strip().splitlines()[-1] == "[]"
+    if not SHARED_VIDEO.is_file():
+        return
+    out = cwd / "track.jsonl"
+    track = NO_SOCKETS + (
+        "import sys\n"
+        "from dsteleop.app.cli.main import main\n"
+        f"sys.exit(main(['track', {str(SHARED_VIDEO)!r}, '--out', {str(out)!r},"
+        " '--max-frames', '20']))\n"
+    )
+    run = subprocess.run(
+        offline([str(py), "-c", track]), cwd=cwd, capture_output=True, text=True, env=env
+    )
+    assert run.returncode == 0, run.stderr[-3000:]
+    summary = json.loads(run.stdout.strip().splitlines()[-1])
+    assert summary["frames"] == 20 and summary["detection_rate"] >= 0.9, summary

@@ -1,4 +1,5 @@
-"""Real MediaPipe Hands (bundled full model) on the real videos and photos of ../shared/data.
+"""Real MediaPipe (the Tasks HandLandmarker, the model shipped in the package) on the real
+videos and photos of ../shared/data.
 
 Each video is tracked once per session (module fixture, ~1000 frames in all). Frame ranges
 below were annotated by looking at the videos (see the comments); they are ground truth about
@@ -13,7 +14,6 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from dsteleop.errors import DsteleopError
 from dsteleop.tracking import (
     Detection,
     DetectorConfig,
@@ -24,7 +24,6 @@ from dsteleop.tracking import (
     TrackerConfig,
     VideoFileSource,
     iter_samples,
-    make_detector,
 )
 from dsteleop.tracking.selection import palm_centre_image
 
@@ -163,8 +162,3 @@ def test_photos_detection_and_gesture_openness(shared_data: Path) -> None:
                 fails[gesture].append(name)
     assert found >= 34
     assert all(len(v) <= 1 for v in fails.values()), fails
-
-
-def test_missing_task_model_is_a_one_line_error(tmp_path: Path) -> None:
-    with pytest.raises(DsteleopError, match="hand landmarker model not found"):
-        make_detector(DetectorConfig(task_model_path=tmp_path / "hand_landmarker.task"))

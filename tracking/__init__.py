@@ -1,5 +1,6 @@
-"""Hand tracking: sources -> MediaPipe Hands -> palm pose + per-finger openness -> filters,
-and the mapping of the tracked hand into the robot workspace.
+"""Hand tracking: sources -> MediaPipe's HandLandmarker (the model shipped in `models/`) ->
+palm pose + per-finger openness -> filters, and the mapping of the tracked hand into the
+robot workspace.
 
 Nothing here opens a camera or loads MediaPipe at import time. See docs/tracking.md.
 

@@ -27,6 +27,7 @@ from dsteleop.tracking.filters import HandFilterConfig, OneEuroFilter, SO3OneEur
 from dsteleop.tracking.pose import CameraIntrinsics, PalmPose, PoseConfig, estimate_palm_pose
 from dsteleop.tracking.selection import HandSelector, SelectionConfig
 from dsteleop.tracking.sources import FrameSource
+from dsteleop.tracking.synthetic import palm_facing_camera, synthesize_detection
 from dsteleop.tracking.types import Array, Detection, Frame, HandSample
 
 log = logging.getLogger(__name__)
@@ -101,10 +102,27 @@ class HandTracker:
         return k
 
     def warm_up(self, width_px: int, height_px: int) -> None:
-        """Load the detector's model now (it takes ~1 s) by running it on one blank frame of
-        this size; then forget everything about that frame."""
+        """Load everything a frame with a hand needs now, then forget those frames.
+
+        The detector's model, by running it on one blank frame of this size (~1 s); and the
+        compiled SO(3) maths of the orientation filter (`arbitration.se3`, loaded from
+        numba's cache at its first call: 0.5-2 s, which would otherwise fall on the second
+        frame with a hand and stall a live loop), by tracking a synthetic hand twice.
+        """
         blank = np.zeros((height_px, width_px, 3), dtype=np.uint8)
         self.detector.detect(blank, 0.0)
+        camera = self.intrinsics(width_px, height_px)
+        wanted = self.config.selection.hand
+        hand = synthesize_detection(
+            np.array([0.0, 0.0, 0.5]),
+            palm_facing_camera(),
+            np.full(5, 0.5),
+            camera,
+            handedness="Left" if wanted == "Left" else "Right",  # one the selector takes
+        )
+        for seq in range(2):
+            frame = Frame(seq, seq / 30.0, width_px, height_px, detections=(hand,))
+            self.process_detections(frame, (hand,))
         self.reset()
 
     def reset(self) -> None:

@@ -3,19 +3,19 @@
 Figures (all from many frames, medians and tail percentiles):
     tracking_fps, tracking_frame_ms   offline pipeline on the real videos resized to 640x480
                                       (480x640 for the portrait one): decode + MediaPipe
-                                      Hands (full model) + palm pose + One Euro filters, as
-                                      `dsteleop track` runs it (decoding 2 frames ahead in a
-                                      reader thread); fps is frames / wall-clock seconds,
-                                      frame_ms the time from asking for a frame to its sample.
+                                      HandLandmarker (shipped model) + palm pose + One Euro
+                                      filters, as `dsteleop track` runs it (decoding 2 frames
+                                      ahead in a reader thread); fps is frames / wall-clock
+                                      seconds, frame_ms the time from asking for a frame to
+                                      its sample.
     tracking_cpu_ms_per_frame         CPU time of the process (all its threads) per frame: less
                                       sensitive than fps to other programs sharing the cores.
     tracking_fps_serial, ..._serial   the same with decoding in the tracking thread.
     tracking_stage_ms                 the prefetching run split into waiting for the decoded
                                       frame, landmarks (MediaPipe) and pose + filters.
-    tracking_lite_fps                 the same with the lite model.
-    tracking_two_hands_fps            full model looking for 2 hands (palm detection runs on
+    tracking_two_hands_fps            the detector looking for 2 hands (palm detection runs on
                                       every frame that shows fewer than 2).
-    tracking_detection_rate           per video, full model.
+    tracking_detection_rate           per video.
     tracking_jitter_still             synthetic hand held still with MediaPipe-like landmark
                                       noise (1 px, 2 mm): median frame-to-frame change, raw
                                       vs filtered (position mm, rotation deg, openness).
@@ -231,8 +231,6 @@ def run(quick: bool) -> dict[str, Any]:
         serial = _video_pass(videos, names, TrackerConfig(), limit, prefetch=0)
         out["tracking_fps_serial"] = serial["fps"]
         out["tracking_frame_ms_serial"] = serial["frame_ms"]
-        lite = TrackerConfig(detector=DetectorConfig(model="lite"))
-        out["tracking_lite_fps"] = _video_pass(videos, names, lite, limit, prefetch=2)["fps"]
         if not quick:
             two = TrackerConfig(detector=DetectorConfig(max_num_hands=2))
             out["tracking_two_hands_fps"] = _video_pass(videos, names, two, limit, prefetch=2)[

@@ -27,11 +27,14 @@ from typing import IO, cast
 log = logging.getLogger("dsteleop.native")
 
 #: The shapes of native log lines: absl/glog (`W0000 00:00:...`), TensorFlow Lite's `INFO:` and
-#: absl's pre-initialisation notice, FFmpeg's `[name @ 0x...]`, OpenCV's `[ WARN:0@1.2]`.
+#: LiteRT's `INFO: [file.cc:12]` (mediapipe 1.x), absl's and glog's pre-initialisation notices,
+#: FFmpeg's `[name @ 0x...]`, OpenCV's `[ WARN:0@1.2]`.
 NATIVE_LINE = re.compile(
     r"^(?:[IWEF]\d{4} \d\d:\d\d:\d\d"
     r"|INFO: Created TensorFlow Lite"
+    r"|INFO: \[\w+\.cc:\d+\] "
     r"|WARNING: All log messages before absl::InitializeLog"
+    r"|WARNING: Logging before InitGoogle\(\)"
     r"|\[[\w ,.-]+ @ 0x[0-9a-f]+\]"
     r"|\[ *(?:WARN|ERROR|INFO|DEBUG|VERBOSE|FATAL):\d+@"
     r"|pybullet build time)"

@@ -26,7 +26,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 
@@ -58,7 +58,6 @@ class TrackCommand:
     source: SourceSpec
     out: Path
     preview: Path | None = None
-    model: Literal["lite", "full"] = "full"
     task_model: Path | None = None
     hand: HandChoice = "any"
     max_hands: int = 1
@@ -75,8 +74,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("source", help=SOURCE_GRAMMAR.replace("demo, auto, ", ""))
     parser.add_argument("--out", required=True, type=Path, help="JSON Lines output, one per frame")
     parser.add_argument("--preview", type=Path, help="write an MP4 with landmarks and palm frame")
-    parser.add_argument("--model", choices=("lite", "full"), default="full", help="bundled model")
-    parser.add_argument("--task-model", type=Path, help="hand_landmarker.task file (Tasks API)")
+    parser.add_argument(
+        "--task-model",
+        type=Path,
+        help="a hand_landmarker.task file instead of the model shipped with dsteleop",
+    )
     parser.add_argument(
         "--hand", choices=("any", "left", "right"), default="any", help="hand to follow"
     )
@@ -119,7 +121,6 @@ def _command(args: argparse.Namespace) -> TrackCommand:
         source=source,
         out=args.out,
         preview=args.preview,
-        model=args.model,
         task_model=args.task_model,
         hand=hand,
         max_hands=args.max_hands,
@@ -176,7 +177,6 @@ def run(args: argparse.Namespace) -> int:
     log.info("track: %s", cmd)
     config = TrackerConfig(
         detector=DetectorConfig(
-            model=cmd.model,
             task_model_path=cmd.task_model,
             max_num_hands=cmd.max_hands,
             static_images=cmd.source.kind == "images",
