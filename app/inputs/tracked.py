@@ -3,20 +3,23 @@
 `TrackedHandInput` is the `ports.HandInput` of every source that goes through the tracking
 pipeline: the newest `HandSample`, mapped into the robot base frame by a `WorkspaceMapping`.
 `poll(now)` never blocks: it returns the newest input that is at least `input_delay_s` old
-(the paper's study injected a delay; default 0), or None when there is none yet.
+(the paper's study injected a delay; default 0), or None when there is none yet. A live
+stream of camera frames (`from_stream` on a source with pixels) also tells the loop when a
+new sample is ready (`arrivals`, `ports.InputArrivals`), so that its tick follows the camera.
 """
 
 from __future__ import annotations
 
 import bisect
 import dataclasses
+import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 
-from dsteleop.app.ports import INVALID, NO_HAND, HumanInput
+from dsteleop.app.ports import INVALID, NO_HAND, HumanInput, InputArrivals
 from dsteleop.arbitration import HandState
 from dsteleop.tracking.mapping import WorkspaceMapping
 from dsteleop.tracking.pipeline import HandTracker, TrackingStream
@@ -42,6 +45,7 @@ class TrackedHandInput:
         finished: tells whether the source has ended (None: never).
         on_start: starts the source delivering (a live stream's threads), or None.
         end_reason: what the loop says once the input of a finished source is stale.
+        arrivals: builds the `ports.InputArrivals` of this input (None: the loop paces it).
     """
 
     def __init__(
@@ -54,6 +58,7 @@ class TrackedHandInput:
         finished: Callable[[], bool] | None = None,
         on_start: Callable[[], None] | None = None,
         end_reason: str = "video ended",
+        arrivals: Callable[[TrackedHandInput], InputArrivals] | None = None,
     ) -> None:
         self._latest = latest
         self._finished = finished
@@ -67,13 +72,22 @@ class TrackedHandInput:
         self._pending: deque[HandSample] = deque(maxlen=512)
         self._current: HandSample | None = None
         self._calibrate = False
+        self._arrivals = None if arrivals is None else arrivals(self)
 
     @classmethod
     def from_stream(
-        cls, stream: TrackingStream, mapping: WorkspaceMapping, input_delay_s: float = 0.0
+        cls,
+        stream: TrackingStream,
+        mapping: WorkspaceMapping,
+        input_delay_s: float = 0.0,
+        follow: bool | None = None,
     ) -> TrackedHandInput:
         """Live: a tracking stream (capture and tracking in their own threads), started by
-        `start()` (the loop's first tick) unless it already runs."""
+        `start()` (the loop's first tick) unless it already runs. With `follow` (default:
+        when the source has pixels: a camera or a video, not the demo's synthetic hand) the
+        input tells the loop when a new sample is ready (`arrivals`)."""
+        if follow is None:
+            follow = bool(getattr(stream.source, "has_pixels", True))
 
         def start() -> None:
             if not stream.started:
@@ -87,6 +101,7 @@ class TrackedHandInput:
             stream.stop,
             lambda: stream.finished,
             on_start=start,
+            arrivals=(lambda hand: _StreamArrivals(stream, hand)) if follow else None,
         )
 
     @classmethod
@@ -117,6 +132,15 @@ class TrackedHandInput:
         if self._on_start is not None:
             self._on_start()
             self._on_start = None
+
+    @property
+    def arrivals(self) -> InputArrivals | None:
+        return self._arrivals
+
+    @property
+    def last_polled_seq(self) -> int:
+        """The frame number of the newest sample `poll` has seen (-1 before the first)."""
+        return self._last_seq
 
     @property
     def finished(self) -> bool:
@@ -164,6 +188,37 @@ class TrackedHandInput:
     def close(self) -> None:
         if self._on_close is not None:
             self._on_close()
+
+
+class _StreamArrivals:
+    """`ports.InputArrivals` of a live tracking stream, on the monotonic clock (the live
+    loop's): a sample is ready when tracked and at least the input delay old."""
+
+    def __init__(self, stream: TrackingStream, hand: TrackedHandInput) -> None:
+        self._stream = stream
+        self._hand = hand
+
+    def _ready_s(self) -> float | None:
+        """When the newest sample the hand has not polled is (or will be) ready."""
+        s = self._stream.latest()
+        if s is None or s.seq <= self._hand.last_polled_seq:
+            return None
+        return max(s.t_tracked_s, s.t_capture_s + self._hand.input_delay_s)
+
+    def wait_newer(self, until_s: float) -> float | None:
+        while True:
+            now = time.monotonic()
+            ready = self._ready_s()
+            if ready is not None and ready <= now:
+                return ready
+            if now >= until_s:
+                return None
+            if ready is not None or self._stream.finished:
+                # Tracked but not yet the delay old, or nothing more will come: sleep.
+                time.sleep(min(until_s, ready if ready is not None else until_s) - now)
+                continue
+            # Block until the stream publishes a sample the hand has not polled.
+            self._stream.wait_for(self._hand.last_polled_seq + 1, until_s - now)
 
 
 class _SyncReader:
