@@ -14,10 +14,13 @@ the tick follows the camera instead (`wait(arrivals, latest_s)`), so that a fres
 not wait for a free-running clock. Let P be the period and s the previous tick's start:
 
 - the tick starts as soon as a new tracked frame is ready, but not before its window opens at
-  s + P - FOLLOW_EARLY P (at once then, when a new frame was already waiting);
-- with no new frame it starts at its deadline: s + P, or s + P + FOLLOW_LATE P when a camera
-  that keeps pace with the loop (frames at most FOLLOW_SLOWER P slower than the ticks) has
-  its next frame due by then (a frame a little late), never past `latest_s`, when the loop's
+  s + P - FOLLOW_EARLY P (at once then, when a new frame was already waiting); after a tick
+  that started without a new frame, the window opens at s + P (the frame that tick missed is
+  not worth an early tick: it would add a tick the camera did not pace);
+- with no new frame it starts at its deadline: s + P, or s + P + FOLLOW_LATE P when the last
+  tick started on a new frame and the camera keeps pace with the loop (frames at most
+  FOLLOW_SLOWER P slower than the ticks) and has its next frame due by then (a frame a little
+  late; not a tracker that cannot keep up), never past `latest_s`, when the loop's
   input goes stale (so a stalled camera halts the robot when it would on the fixed
   schedule: once a frame is overdue the ticks come every P, docs/ARCHITECTURE.md);
 - the loop's world (P per tick) never runs ahead of the wall clock by more than FOLLOW_AHEAD P:
@@ -298,7 +301,7 @@ class RateClock:
         opens = max(nominal - self.early_s, nominal + self._ahead_s - FOLLOW_AHEAD * P)
         if not self._last_on_frame:
             opens = nominal  # the frame the last tick missed is not worth an early tick
-        late = self.late_s if self._frame_due_by(nominal) else 0.0
+        late = self.late_s if self._last_on_frame and self._frame_due_by(nominal) else 0.0
         deadline = max(opens, min(nominal + late, max(nominal, latest_s)))
         if now < opens:
             self.clock.sleep_until(opens)
