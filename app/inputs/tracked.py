@@ -137,9 +137,14 @@ class TrackedHandInput:
     def arrivals(self) -> InputArrivals | None:
         return self._arrivals
 
+    def unreturned(self) -> list[HandSample]:
+        """The kept samples newer than the one `poll` returned last, oldest first."""
+        seq = -1 if self._current is None else self._current.seq
+        return [s for s in self._pending if s.seq > seq]
+
     @property
-    def last_polled_seq(self) -> int:
-        """The frame number of the newest sample `poll` has seen (-1 before the first)."""
+    def newest_seen_seq(self) -> int:
+        """The frame number of the newest sample kept (-1 before the first)."""
         return self._last_seq
 
     @property
@@ -150,11 +155,15 @@ class TrackedHandInput:
     def mapping_config(self) -> dict[str, Any]:
         return dataclasses.asdict(self.mapping.config)
 
-    def poll(self, now_s: float) -> HumanInput | None:
-        s = self._latest(now_s)
+    def keep(self, s: HandSample | None) -> None:
+        """Keep a sample of the source until it is `input_delay_s` old (the first step of
+        `poll`; the arrivals call it too, so that a sample seen while waiting is kept)."""
         if s is not None and s.seq != self._last_seq:
             self._last_seq = s.seq
             self._pending.append(s)
+
+    def poll(self, now_s: float) -> HumanInput | None:
+        self.keep(self._latest(now_s))
         # The newest sample at least `input_delay_s` old becomes current.
         while self._pending and self._pending[0].t_capture_s <= now_s - self.input_delay_s:
             self._current = self._pending.popleft()
@@ -198,27 +207,33 @@ class _StreamArrivals:
         self._stream = stream
         self._hand = hand
 
-    def _ready_s(self) -> float | None:
-        """When the newest sample the hand has not polled is (or will be) ready."""
-        s = self._stream.latest()
-        if s is None or s.seq <= self._hand.last_polled_seq:
+    def _ready_s(self, now_s: float) -> float | None:
+        """When the input the hand would return next is ready: the newest sample not yet
+        returned that is ready by `now_s`, else the earliest one to become ready."""
+        self._hand.keep(self._stream.latest())
+        samples = self._hand.unreturned()
+        if not samples:
             return None
-        return max(s.t_tracked_s, s.t_capture_s + self._hand.input_delay_s)
+        delay = self._hand.input_delay_s
+        ready = [max(s.t_tracked_s, s.t_capture_s + delay) for s in samples]
+        past = [r for r in ready if r <= now_s]
+        return max(past) if past else min(ready)
 
     def wait_newer(self, until_s: float) -> float | None:
         while True:
             now = time.monotonic()
-            ready = self._ready_s()
+            ready = self._ready_s(now)
             if ready is not None and ready <= now:
                 return ready
             if now >= until_s:
                 return None
-            if ready is not None or self._stream.finished:
-                # Tracked but not yet the delay old, or nothing more will come: sleep.
-                time.sleep(min(until_s, ready if ready is not None else until_s) - now)
+            wake = until_s if ready is None else min(until_s, ready)  # the delay old
+            if self._stream.finished:
+                time.sleep(wake - now)  # nothing more will come
                 continue
-            # Block until the stream publishes a sample the hand has not polled.
-            self._stream.wait_for(self._hand.last_polled_seq + 1, until_s - now)
+            # Block until the stream publishes a sample newer than any the hand has kept, or
+            # a kept one is the delay old.
+            self._stream.wait_for(self._hand.newest_seen_seq + 1, wake - now)
 
 
 class _SyncReader:

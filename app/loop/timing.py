@@ -11,7 +11,9 @@ allows) counts its ticks and their durations through `count`.
 
 With a hand that has frames of its own (a camera, a video played live: `ports.InputArrivals`)
 the tick follows the camera instead (`wait(arrivals, latest_s)`), so that a fresh frame does
-not wait for a free-running clock. Let P be the period and s the previous tick's start:
+not wait for a free-running clock. Let P be the period and s the moment the previous tick was
+due (its frame's arrival, its window's opening or its deadline; re-anchored after an overrun,
+as on the fixed schedule, so that the thread's wake-up delays do not add up):
 
 - the tick starts as soon as a new tracked frame is ready, but not before its window opens at
   s + P - FOLLOW_EARLY P (at once then, when a new frame was already waiting); after a tick
@@ -196,7 +198,8 @@ FOLLOW_SLOWER = 0.05
 #: The loop's world never runs ahead of the wall clock by more than this many periods
 #: (early ticks count ahead, late ones behind) ...
 FOLLOW_AHEAD = 0.5
-#: ... behind by more than this it is forgiven (a camera slower than the rate, a late tick) ...
+#: ... behind by more than this it is forgiven (a camera slower than the rate, a stall: the
+#: loop does not burst to catch up) ...
 FOLLOW_BEHIND = 10.0
 #: ... and an ahead is forgiven by this many periods a tick: the loop keeps pace with a camera
 #: up to 1 % faster than its rate, and a faster camera gives at most 1 % more ticks.
@@ -275,16 +278,15 @@ class RateClock:
         if overrun:
             # Late by more than a period: re-anchor on now instead of bursting to catch up.
             self.overruns += 1
-            self._next_s = now + self.period_s
-        else:
-            self._next_s = due + self.period_s
+            due = now
+        self._next_s = due + self.period_s
         if arrivals is not None and self._last_start is not None:
             self._ahead_s = self._ahead(now - self._last_start)
         self.frame_ticks += on_frame
         self._last_on_frame = on_frame
         self._jitter.append(jitter)
         self._late.append(overrun)
-        timing = TickTiming(self._index, due, now, jitter, overrun, on_frame)
+        timing = TickTiming(self._index, now - jitter, now, jitter, overrun, on_frame)
         self._index += 1
         self._last_start = now
         return timing
@@ -297,7 +299,8 @@ class RateClock:
         if self._last_start is None:  # the first tick starts now
             return now, arrivals.wait_newer(now)
         P = self.period_s
-        nominal = self._last_start + P
+        assert self._next_s is not None
+        nominal = self._next_s  # one period after the last tick was due (or re-anchored)
         opens = max(nominal - self.early_s, nominal + self._ahead_s - FOLLOW_AHEAD * P)
         if not self._last_on_frame:
             opens = nominal  # the frame the last tick missed is not worth an early tick
