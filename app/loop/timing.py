@@ -31,14 +31,16 @@ as on the fixed schedule, so that the thread's wake-up delays do not add up):
   FOLLOW_DRIFT P a tick, so the loop keeps pace with a camera up to 1 % faster than its rate
   and a faster camera (60 fps) gives at most 1 % more ticks than the rate.
 
-Ticks are at least (1 - FOLLOW_EARLY) P apart. A tick that follows a frame starts right after
-it (the tracker's time per frame plus the loop's wake-up); the schedule locks onto a camera of
-about the loop's rate (from FOLLOW_SLOWER slower to 1 % faster) and then runs at its pace;
-with a camera of another rate (15, 25 or 60 fps) the ticks keep about the loop's rate and
-start on a new frame when one is ready in their window. A strict "never sooner than P after the
-previous tick" cannot stay locked onto a camera of exactly the loop's rate: one late frame
-delays its tick, and every later frame then waits for the period, so the lag grows to the
-largest delay ever seen; the early margin lets the schedule come back.
+Ticks are due at least (1 - FOLLOW_EARLY) P apart (a thread that wakes late can only start a
+tick later than it was due, as on the fixed schedule). A tick that follows a frame starts
+right after it (the tracker's time per frame plus the loop's wake-up); the schedule locks
+onto a camera of about the loop's rate (from FOLLOW_SLOWER slower to 1 % faster) and then
+runs at its pace; with a camera of another rate (15, 25 or 60 fps) the ticks keep about the
+loop's rate and start on a new frame when one is ready in their window. A strict "never
+sooner than P after the previous tick" cannot stay locked onto a camera of exactly the
+loop's rate: one late frame delays its tick, and every later frame then waits for the
+period, so the lag grows to the largest delay ever seen; the early margin lets the schedule
+come back.
 
 Jitter is then the start minus the moment the schedule meant the tick to start (the frame's
 arrival or the window's opening, or the deadline): how late the loop's thread woke, as on the
