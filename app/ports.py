@@ -12,6 +12,8 @@ module and never the loop, and the loop cannot tell implementations apart:
                 robot knows them, with noise), phases, events, outcome, reset; the kitchen
                 pick-and-place (judging any robot that can reach it), a recorded task, a fake
     Clock       time: the monotonic clock live, a manual clock headless and in tests
+    InputArrivals  when new hand input is ready, for a loop whose tick follows the camera
+                (a hand with frames of its own: a camera or a video played live)
     Observer    anyone who sees the ticks: the browser view, the demo operator's eyes, a
                 recorder, a test; called once per tick from the loop's thread, and must not
                 block (a one-slot mailbox, `loop.broadcast`, decouples slow observers)
@@ -82,6 +84,13 @@ class HandInput(Protocol):
 
     def poll(self, now_s: float) -> HumanInput | None:
         """The newest input at loop time `now_s` (never blocks), or None before the first."""
+        ...
+
+    @property
+    def arrivals(self) -> InputArrivals | None:
+        """When new input becomes ready, for a tick that follows the camera's frames; None
+        for a source the loop paces on its own clock (the demo, a recording, a headless
+        reader)."""
         ...
 
     def reanchor(self, inp: HumanInput, X_target: HandState) -> HumanInput:
@@ -311,6 +320,23 @@ class Clock(Protocol):
     def now(self) -> float: ...
 
     def sleep_until(self, t_s: float) -> None: ...
+
+
+class InputArrivals(Protocol):
+    """When new hand input is ready (`loop.timing.RateClock`'s frame-following schedule).
+
+    "New" is an input the hand has not returned from `poll` yet; it is ready when it may
+    drive the loop: tracked, and (with an injected delay) at least the delay old.
+    """
+
+    def wait_newer(self, until_s: float) -> float | None:
+        """Block until an input the hand has not returned from `poll` yet is ready, or until
+        loop time `until_s`; returns at once when one is ready already or `until_s` is past.
+
+        Returns:
+            The loop time the newest such input became ready [s], or None when none is.
+        """
+        ...
 
 
 class Observer(Protocol):

@@ -11,6 +11,7 @@ returning hand maps to where the loop asks). None of them imports PyBullet.
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Callable
 from typing import Any
@@ -18,7 +19,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from dsteleop.app.ports import NO_HAND, HumanInput, RobotLimits, RobotState, TaskStep
+from dsteleop.app.ports import (
+    NO_HAND,
+    HumanInput,
+    InputArrivals,
+    RobotLimits,
+    RobotState,
+    TaskStep,
+)
 from dsteleop.arbitration import HandState, so3_exp
 from dsteleop.robot.scene import SceneGeometry
 from dsteleop.robot.task import EventKind, Outcome, Phase, TaskEvent
@@ -253,6 +261,11 @@ class ScriptedHand:
             inp = HumanInput(k, t, t, self._map(raw))
         return self.corrupt(inp) if self.corrupt is not None else inp
 
+    @property
+    def arrivals(self) -> InputArrivals | None:
+        """None: the loop paces a scripted hand on its own clock."""
+        return None
+
     def reanchor(self, inp: HumanInput, X_target: HandState) -> HumanInput:
         raw = self._raw.get(inp.seq)
         if raw is None or inp.X_human is None:
@@ -281,3 +294,71 @@ class ScriptedHand:
 
     def close(self) -> None:
         self.closed = True
+
+
+class FramedHand(ScriptedHand):
+    """A `ScriptedHand` seen through a camera with a tracker, on a `ManualClock`: frame k is
+    captured at k / fps (until `stall_at_s`: then the camera stalls) and ready once tracked,
+    `tracking_s(k)` after its capture, in order (a frame is never ready before the previous);
+    `poll` returns the newest ready frame. Its `arrivals` (`ports.InputArrivals`) wait on the
+    manual clock (advancing it), so a loop's tick can follow the frames deterministically.
+
+    Args:
+        path: the hand's pose over time (robot base frame).
+        clock: the loop's manual clock.
+        fps: capture rate [Hz].
+        tracking_s: tracking time of frame k [s].
+        stall_at_s: no frame is captured from this time on [s].
+        duration_s: frames are made up to this capture time [s].
+    """
+
+    def __init__(
+        self,
+        path: Path,
+        clock: Any,
+        fps: float = 30.0,
+        tracking_s: Callable[[int], float] = lambda k: 0.02,
+        stall_at_s: float = math.inf,
+        duration_s: float = 30.0,
+    ) -> None:
+        super().__init__(path, fps)
+        self.clock = clock
+        self.capture_s: list[float] = []
+        self.ready_s: list[float] = []
+        k = 0
+        while k / fps < min(stall_at_s, duration_s):
+            prev = self.ready_s[-1] if self.ready_s else -math.inf
+            self.capture_s.append(k / fps)
+            self.ready_s.append(max(prev, k / fps + tracking_s(k)))
+            k += 1
+        self.polled = -1
+
+    @property
+    def arrivals(self) -> FramedHand:
+        return self
+
+    def _newest(self, now_s: float) -> int:
+        return bisect.bisect_right(self.ready_s, now_s + 1e-12) - 1
+
+    def poll(self, now_s: float) -> HumanInput | None:
+        k = self._newest(now_s)
+        if k < 0:
+            return None
+        self.polled = max(self.polled, k)
+        t, ready = self.capture_s[k], self.ready_s[k]
+        raw = self.path(t)
+        if raw is None:
+            return HumanInput(k, t, ready, None, NO_HAND)
+        self._raw[k] = raw
+        return HumanInput(k, t, ready, self._map(raw))
+
+    def wait_newer(self, until_s: float) -> float | None:
+        k = self._newest(self.clock.now())
+        if k > self.polled:
+            return self.ready_s[k]
+        j = self.polled + 1  # the next frame to become ready
+        if j < len(self.ready_s) and self.ready_s[j] <= until_s:
+            self.clock.sleep_until(self.ready_s[j])
+            return self.ready_s[j]
+        self.clock.sleep_until(until_s)
+        return None

@@ -3,10 +3,18 @@
 Runs `TeleopLoop` in real time on the monotonic clock for 60 s (10 s with --quick), after a
 2 s warm-up that is not counted (the model loads on the first frames): capture
 and MediaPipe tracking of a real hand video (paced at its frame rate, looping) in their own
-threads, DS arbitration and the PyBullet robot in the loop. Reports start-time jitter
-(p50/p99/max), tick duration, overruns, and frame-to-command latency (capture of a frame to
-the robot command computed from it; p50/p95/p99). Falls back to the demo source when the
-test-data folder is not given (`--data DIR`, docs/test-data.md).
+threads, DS arbitration and the PyBullet robot in the loop, each tick following the video's
+frames (`timing.RateClock`). Reports start-time jitter (p50/p99/max), tick duration, overruns,
+the rate kept (ticks per second of the measured wall time), the share of ticks that started
+on a new frame, and, over the same frames, frame-to-command latency (capture of a frame to
+the robot command computed from it; p50/p95/p99), the tracker's time per frame (capture to
+tracked) and MediaPipe's own time per frame (its `detect` call alone), with
+`latency_over_mediapipe_ms_p50` the difference of the two medians (issue 24's target: at most
+5 ms). Falls back to the demo source when the test-data folder is not given (`--data DIR`,
+docs/test-data.md).
+
+`loop_fixed_rate` is the same run on the fixed-rate schedule (the loop before it followed the
+camera), measured right after `loop`, for the comparison under the same load.
 
 A second run, `loop_recording_video`, measures the same while the session is recorded, as
 `run --record DIR --record-video` does: every tick to `ticks.jsonl` (recorder thread) and
@@ -24,8 +32,11 @@ from __future__ import annotations
 
 import socket
 import tempfile
+import time
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from dsteleop.app.bench import data_dir
 from dsteleop.app.inputs.tracked import TrackedHandInput
@@ -35,9 +46,11 @@ from dsteleop.app.plants.kitchen import simulated_kitchen
 from dsteleop.app.rrd.target import RerunTarget
 from dsteleop.app.session.video import FrameRecorder
 from dsteleop.arbitration import Mode
+from dsteleop.tracking.detector import DetectorConfig, HandDetector, make_detector
 from dsteleop.tracking.mapping import WorkspaceMapping
 from dsteleop.tracking.pipeline import HandTracker, TrackingStream
 from dsteleop.tracking.sources import FrameSource, VideoFileSource
+from dsteleop.tracking.types import Detection, Image
 
 VIDEO = "open_hand_wave_landscape.mp4"
 
@@ -53,6 +66,7 @@ def run(quick: bool = False) -> dict[str, Any]:
     seconds = 10.0 if quick else 60.0
     raise_priority()  # as `dsteleop serve` does
     out = {"loop": _one(seconds, record=False)}
+    out["loop_fixed_rate"] = _one(seconds, follow=False)
     with tempfile.TemporaryDirectory(prefix="dsteleop-bench-") as tmp:
         out["loop_recording_video"] = _one(seconds, record=True, folder=Path(tmp) / "session")
         out["loop_rerun"] = _one(seconds, rerun=RerunTarget(Path(tmp) / "bench.rrd"))
@@ -73,15 +87,17 @@ def _one(
     record: bool = False,
     folder: Path | None = None,
     rerun: RerunTarget | None = None,
+    follow: bool = True,
 ) -> dict[str, Any]:
     """One measured run (module docstring), recording into `folder` when `record`, with a
-    Rerun logger when `rerun` is given."""
+    Rerun logger when `rerun` is given, following the frames unless not `follow`."""
     video = shared_video()
     if video is None:
         from dsteleop.app.cli.compose import build
         from dsteleop.app.cli.options import LoopOptions
 
         built = build(LoopOptions.of("demo", LoopConfig(mode=Mode.DS), rerun=rerun), realtime=True)
+        built.loop.follow_frames = follow
         result = _measure(built.loop, seconds, "demo (synthetic operator, no pixels)", folder)
         if built.rerun is not None:
             result["rerun"] = _rerun_stats(built.rerun, rerun)
@@ -89,7 +105,8 @@ def _one(
     robot, task = simulated_kitchen(utensil="spoon", seed=0, export_scene=rerun is not None)
     source: FrameSource = VideoFileSource(video, realtime=True, loop=True)
     frames = FrameRecorder(source) if record else None
-    stream = TrackingStream(frames or source, HandTracker())
+    detector = _TimedDetector(make_detector(DetectorConfig()))
+    stream = TrackingStream(frames or source, HandTracker(detector=detector))
     hand = TrackedHandInput.from_stream(stream.open(), WorkspaceMapping())
     logger: Any = None
     if rerun is not None:
@@ -104,12 +121,30 @@ def _one(
         task,
         frame_recorder=frames,
         observers=() if logger is None else (logger,),
+        follow_frames=follow,
     )
     what = f"video {video.name} (looping, MediaPipe full model)"
-    result = _measure(loop, seconds, what, folder, frames)
+    result = _measure(loop, seconds, what, folder, frames, detector=detector)
     if logger is not None:
         result["rerun"] = _rerun_stats(logger, rerun)
     return result
+
+
+class _TimedDetector:
+    """A `HandDetector` that keeps the time of each of its `detect` calls [ms]."""
+
+    def __init__(self, inner: HandDetector) -> None:
+        self.inner = inner
+        self.ms: list[float] = []
+
+    def detect(self, image_bgr: Image, t_s: float) -> list[Detection]:
+        t0 = time.perf_counter()
+        out = self.inner.detect(image_bgr, t_s)
+        self.ms.append((time.perf_counter() - t0) * 1e3)
+        return out
+
+    def close(self) -> None:
+        self.inner.close()
 
 
 def _rerun_stats(logger: Any, target: RerunTarget | None) -> dict[str, Any]:
@@ -126,8 +161,10 @@ def _measure(
     folder: Path | None = None,
     frames: FrameRecorder | None = None,
     warmup_s: float = 2.0,
+    detector: _TimedDetector | None = None,
 ) -> dict[str, Any]:
     recorded: dict[str, Any] = {}
+    mediapipe: dict[str, Any] = {}
     try:
         # Warm-up: the first frames load the model and fill caches; then measure.
         loop.run(max_ticks=round(warmup_s * loop.config.rate_hz))
@@ -135,8 +172,23 @@ def _measure(
             loop.start_recording(folder)  # resets the task: a new episode, as a user's would
         loop.rate.reset_stats()
         loop.latency_ms.clear()
+        loop.tracking_ms.clear()
+        if detector is not None:
+            detector.ms.clear()
+        t0 = time.monotonic()
         loop.run(max_ticks=round(seconds * loop.config.rate_hz))
+        wall_s = time.monotonic() - t0
         summary = loop.timing_summary()
+        if detector is not None and detector.ms:
+            mp = float(np.median(detector.ms))
+            mediapipe = {
+                "mediapipe_frames": len(detector.ms),
+                "mediapipe_ms_p50": round(mp, 3),
+                "mediapipe_ms_p95": round(float(np.percentile(detector.ms, 95)), 3),
+            }
+            if "latency_ms_p50" in summary:
+                over = float(summary["latency_ms_p50"]) - mp
+                mediapipe["latency_over_mediapipe_ms_p50"] = round(over, 3)
     finally:
         loop.close()
     if folder is not None:
@@ -149,8 +201,10 @@ def _measure(
     return {
         "source": source,
         "seconds": seconds,
+        "follows_frames": loop.follow_frames and loop.hand.arrivals is not None,
         "rate_hz_target": loop.config.rate_hz,
-        "rate_hz": round(summary["ticks"] / seconds, 3),
+        "rate_hz": round(summary["ticks"] / wall_s, 3),
         **summary,
+        **mediapipe,
         **recorded,
     }

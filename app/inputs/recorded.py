@@ -6,7 +6,7 @@ import bisect
 from collections.abc import Sequence
 from typing import Any
 
-from dsteleop.app.ports import HumanInput
+from dsteleop.app.ports import HumanInput, InputArrivals
 from dsteleop.app.session.schema import TickRecord
 from dsteleop.arbitration import HandState
 
@@ -37,6 +37,11 @@ class RecordedHandInput:
         return self._now >= self._last
 
     end_reason = "recording ended"
+
+    @property
+    def arrivals(self) -> InputArrivals | None:
+        """None: a recording is replayed on the loop's own clock."""
+        return None
 
     def start(self) -> None:
         pass

@@ -3,20 +3,23 @@
 `TrackedHandInput` is the `ports.HandInput` of every source that goes through the tracking
 pipeline: the newest `HandSample`, mapped into the robot base frame by a `WorkspaceMapping`.
 `poll(now)` never blocks: it returns the newest input that is at least `input_delay_s` old
-(the paper's study injected a delay; default 0), or None when there is none yet.
+(the paper's study injected a delay; default 0), or None when there is none yet. A live
+stream of camera frames (`from_stream` on a source with pixels) also tells the loop when a
+new sample is ready (`arrivals`, `ports.InputArrivals`), so that its tick follows the camera.
 """
 
 from __future__ import annotations
 
 import bisect
 import dataclasses
+import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 
-from dsteleop.app.ports import INVALID, NO_HAND, HumanInput
+from dsteleop.app.ports import INVALID, NO_HAND, HumanInput, InputArrivals
 from dsteleop.arbitration import HandState
 from dsteleop.tracking.mapping import WorkspaceMapping
 from dsteleop.tracking.pipeline import HandTracker, TrackingStream
@@ -42,6 +45,7 @@ class TrackedHandInput:
         finished: tells whether the source has ended (None: never).
         on_start: starts the source delivering (a live stream's threads), or None.
         end_reason: what the loop says once the input of a finished source is stale.
+        arrivals: builds the `ports.InputArrivals` of this input (None: the loop paces it).
     """
 
     def __init__(
@@ -54,6 +58,7 @@ class TrackedHandInput:
         finished: Callable[[], bool] | None = None,
         on_start: Callable[[], None] | None = None,
         end_reason: str = "video ended",
+        arrivals: Callable[[TrackedHandInput], InputArrivals] | None = None,
     ) -> None:
         self._latest = latest
         self._finished = finished
@@ -67,13 +72,22 @@ class TrackedHandInput:
         self._pending: deque[HandSample] = deque(maxlen=512)
         self._current: HandSample | None = None
         self._calibrate = False
+        self._arrivals = None if arrivals is None else arrivals(self)
 
     @classmethod
     def from_stream(
-        cls, stream: TrackingStream, mapping: WorkspaceMapping, input_delay_s: float = 0.0
+        cls,
+        stream: TrackingStream,
+        mapping: WorkspaceMapping,
+        input_delay_s: float = 0.0,
+        follow: bool | None = None,
     ) -> TrackedHandInput:
         """Live: a tracking stream (capture and tracking in their own threads), started by
-        `start()` (the loop's first tick) unless it already runs."""
+        `start()` (the loop's first tick) unless it already runs. With `follow` (default:
+        when the source has pixels: a camera or a video, not the demo's synthetic hand) the
+        input tells the loop when a new sample is ready (`arrivals`)."""
+        if follow is None:
+            follow = bool(getattr(stream.source, "has_pixels", True))
 
         def start() -> None:
             if not stream.started:
@@ -87,6 +101,7 @@ class TrackedHandInput:
             stream.stop,
             lambda: stream.finished,
             on_start=start,
+            arrivals=(lambda hand: _StreamArrivals(stream, hand)) if follow else None,
         )
 
     @classmethod
@@ -119,6 +134,20 @@ class TrackedHandInput:
             self._on_start = None
 
     @property
+    def arrivals(self) -> InputArrivals | None:
+        return self._arrivals
+
+    def unreturned(self) -> list[HandSample]:
+        """The kept samples newer than the one `poll` returned last, oldest first."""
+        seq = -1 if self._current is None else self._current.seq
+        return [s for s in self._pending if s.seq > seq]
+
+    @property
+    def newest_seen_seq(self) -> int:
+        """The frame number of the newest sample kept (-1 before the first)."""
+        return self._last_seq
+
+    @property
     def finished(self) -> bool:
         """The source has no more frames (a file that ended); False for live sources."""
         return self._finished is not None and self._finished()
@@ -126,11 +155,15 @@ class TrackedHandInput:
     def mapping_config(self) -> dict[str, Any]:
         return dataclasses.asdict(self.mapping.config)
 
-    def poll(self, now_s: float) -> HumanInput | None:
-        s = self._latest(now_s)
+    def keep(self, s: HandSample | None) -> None:
+        """Keep a sample of the source until it is `input_delay_s` old (the first step of
+        `poll`; the arrivals call it too, so that a sample seen while waiting is kept)."""
         if s is not None and s.seq != self._last_seq:
             self._last_seq = s.seq
             self._pending.append(s)
+
+    def poll(self, now_s: float) -> HumanInput | None:
+        self.keep(self._latest(now_s))
         # The newest sample at least `input_delay_s` old becomes current.
         while self._pending and self._pending[0].t_capture_s <= now_s - self.input_delay_s:
             self._current = self._pending.popleft()
@@ -164,6 +197,43 @@ class TrackedHandInput:
     def close(self) -> None:
         if self._on_close is not None:
             self._on_close()
+
+
+class _StreamArrivals:
+    """`ports.InputArrivals` of a live tracking stream, on the monotonic clock (the live
+    loop's): a sample is ready when tracked and at least the input delay old."""
+
+    def __init__(self, stream: TrackingStream, hand: TrackedHandInput) -> None:
+        self._stream = stream
+        self._hand = hand
+
+    def _ready_s(self, now_s: float) -> float | None:
+        """When the input the hand would return next is ready: the newest sample not yet
+        returned that is ready by `now_s`, else the earliest one to become ready."""
+        self._hand.keep(self._stream.latest())
+        samples = self._hand.unreturned()
+        if not samples:
+            return None
+        delay = self._hand.input_delay_s
+        ready = [max(s.t_tracked_s, s.t_capture_s + delay) for s in samples]
+        past = [r for r in ready if r <= now_s]
+        return max(past) if past else min(ready)
+
+    def wait_newer(self, until_s: float) -> float | None:
+        while True:
+            now = time.monotonic()
+            ready = self._ready_s(now)
+            if ready is not None and ready <= now:
+                return ready
+            if now >= until_s:
+                return None
+            wake = until_s if ready is None else min(until_s, ready)  # the delay old
+            if self._stream.finished:
+                time.sleep(wake - now)  # nothing more will come
+                continue
+            # Block until the stream publishes a sample newer than any the hand has kept, or
+            # a kept one is the delay old.
+            self._stream.wait_for(self._hand.newest_seen_seq + 1, wake - now)
 
 
 class _SyncReader:

@@ -1,4 +1,5 @@
-"""The 30 Hz teleoperation loop: hand -> arbitration -> robot, one fixed-rate tick at a time.
+"""The 30 Hz teleoperation loop: hand -> arbitration -> robot, one tick at a time, at a fixed
+rate or following the camera's frames (`timing.RateClock`).
 
 `TeleopLoop` owns the clock and the tick's side effects; the decisions are the pure
 functions of `tick.py`. One tick:
@@ -24,6 +25,7 @@ import datetime
 import gc
 import json
 import logging
+import math
 import sys
 import threading
 import time
@@ -43,6 +45,7 @@ from dsteleop.app.loop.timing import (
     OVERRUN_WINDOW_S,
     MonotonicClock,
     RateClock,
+    TickTiming,
     put_this_thread_first,
 )
 from dsteleop.app.ports import (
@@ -94,6 +97,8 @@ class TeleopLoop:
         meta: extra metadata for recordings (source description, seeds, ...).
         episode_sink: gets every recorded episode once its ticks are written (e.g. a live
             LeRobot dataset, `--record-lerobot`).
+        follow_frames: in real time (`run`), each tick follows the hand's new frames when
+            the hand has them (`HandInput.arrivals`); False: the fixed-rate schedule.
     """
 
     def __init__(
@@ -111,9 +116,11 @@ class TeleopLoop:
         record_root: Path | None = None,
         meta: dict[str, Any] | None = None,
         episode_sink: EpisodeSink | None = None,
+        follow_frames: bool = True,
     ) -> None:
         self.config = config
         self._episode_sink = episode_sink
+        self.follow_frames = follow_frames
         self.hand = hand
         self.robot = robot
         self.task = task
@@ -140,7 +147,10 @@ class TeleopLoop:
         self.recordings: list[Path] = []
         # Frame-to-command latency [ms] of each new frame (its first command), recent ticks.
         self.latency_ms: deque[float] = deque(maxlen=18000)
+        # Capture to tracked [ms] of the same frames: the tracker's own time per frame.
+        self.tracking_ms: deque[float] = deque(maxlen=18000)
         self._latency_seq = -1
+        self._last_input: HumanInput | None = None
         self._hist_key: tuple[int, Any] | None = None
         self._hist_term: Array | None = None
         self.mode = config.mode
@@ -330,6 +340,7 @@ class TeleopLoop:
         self._apply(requests)
         reset_state, self._reset_state = self._reset_state, None
         inp = self.hand.poll(now)
+        self._last_input = inp
         goal = self.task.goal()
         if (
             self.state.lost
@@ -454,6 +465,7 @@ class TeleopLoop:
             if inp.seq != self._latency_seq:
                 self._latency_seq = inp.seq
                 self.latency_ms.append(out["capture_to_commanded_ms"])
+                self.tracking_ms.append(out["capture_to_tracked_ms"])
         return out
 
     # --- running ---------------------------------------------------------------------
@@ -465,10 +477,13 @@ class TeleopLoop:
         until_finished: bool = False,
         tail_s: float = 0.5,
     ) -> None:
-        """Tick at the fixed rate until `stop()`, `max_ticks`, or (optionally) an outcome or
+        """Tick in real time until `stop()`, `max_ticks`, or (optionally) an outcome or
         the end of a file source (plus `tail_s` [s], so the halt shows in the record, as in
         `run_headless`). The hand input starts delivering (a file starts playing) just
-        before the first tick.
+        before the first tick. Each tick follows the hand's new frames when it has them
+        (`follow_frames` and `HandInput.arrivals`: a camera, a video), else the fixed rate
+        (`timing.RateClock`); it never waits for a frame past its nominal time beyond the
+        moment the input it has goes stale, so the halt comes when it would at the fixed rate.
 
         While it runs, the interpreter hands the GIL between threads every 0.5 ms instead of
         5 ms, so capture and tracking threads delay a due tick by at most about that much.
@@ -493,7 +508,7 @@ class TeleopLoop:
         end_at: float | None = None
         try:
             while not self._stop.is_set():
-                timing = self.rate.wait()
+                timing = self.wait_for_tick()
                 self.tick(timing.t_start_s, timing.jitter_s)
                 self.rate.done()
                 self._say_overrun()
@@ -508,6 +523,20 @@ class TeleopLoop:
                     break
         finally:
             sys.setswitchinterval(switch)
+
+    def wait_for_tick(self) -> TickTiming:
+        """Wait until the next real-time tick is due: following the hand's new frames when it
+        has them (`follow_frames`, `HandInput.arrivals`), else at the fixed rate; never past
+        the moment the input of the last tick goes stale (`run`)."""
+        arrivals = self.hand.arrivals if self.follow_frames else None
+        return self.rate.wait(arrivals, self._stale_at())
+
+    def _stale_at(self) -> float:
+        """When the input of the last tick goes stale (`tick.staleness`) [s]; -inf without."""
+        inp = self._last_input
+        if inp is None:
+            return -math.inf
+        return inp.t_capture_s + self.config.input_delay_s + self.config.stale_limit_s
 
     def _say_overrun(self) -> None:
         """Log once when the loop stops keeping its rate (a sustained overrun share), and
@@ -550,8 +579,13 @@ class TeleopLoop:
         self._stop.set()
 
     def timing_summary(self) -> dict[str, float | int]:
-        """Rate-clock statistics plus frame-to-command latency percentiles [ms]."""
+        """Rate-clock statistics plus, over the same new frames, frame-to-command latency
+        percentiles and the tracker's own time per frame (capture to tracked) [ms]."""
         out = self.rate.summary()
+        if self.tracking_ms:
+            a = np.asarray(self.tracking_ms)
+            out["tracking_ms_p50"] = round(float(np.median(a)), 3)
+            out["tracking_ms_p95"] = round(float(np.percentile(a, 95)), 3)
         if self.latency_ms:
             a = np.asarray(self.latency_ms)
             out["latency_ms_p50"] = round(float(np.median(a)), 3)
