@@ -84,6 +84,7 @@ from dsteleop.arbitration import (
     so3_exp,
 )
 from dsteleop.arbitration.history import history_terms
+from dsteleop.arbitration.se3 import ROT, TRANS
 from dsteleop.arbitration.se3 import stack as stack_states
 from dsteleop.errors import ConfigError
 from dsteleop.robot.task import Phase
@@ -1061,8 +1062,10 @@ def _mode_result(
     # (N, T - 1, ...) views: the metrics reduce over the time axis wherever it lies in memory.
     U_h_all, U_out_all = np.swapaxes(U_h_tm, 0, 1), np.swapaxes(U_out_tm, 0, 1)
     acted = acted_tm.T
-    # The literal definitions (the headline), from the actions' products, computed once.
-    lit = metrics.ActionProducts.of(U_h_all, U_out_all)
+    # The actions' products per group (translation, rotation: the planar study has no
+    # fingers), computed once; the literal definitions (the headline) weigh both alike.
+    groups = metrics.ActionProducts.of_groups(U_h_all, U_out_all, (TRANS, ROT))
+    lit = metrics.ActionProducts.combine(groups, (1.0, 1.0))
     c = metrics.cosine_distances(lit)
     cos = metrics.summarise_cosines(c, acted)
     ag = metrics.agreement_of(lit, acted)
@@ -1128,7 +1131,7 @@ def _mode_result(
         n_idle=cos.n_skipped,
         hand_hist=metrics.trajectory_histogram(hand_tm[hand_valid], HIST_BINS, ranges),
         hand_paths=_paths(hand[:n_paths], lengths[:n_paths]),
-        variants=_variants(cfg, U_h_all, U_out_all, acted, lit, c),
+        variants=_variants(cfg, groups, acted, lit, c),
         committed=committed,
         hand_final=hand[rows, last],
         attempt=np.full(N, attempt, dtype=np.int64),
@@ -1150,18 +1153,20 @@ VARIANTS = {
 
 def _variants(
     cfg: SimConfig,
-    U_h: Array,
-    U_out: Array,
+    groups: Sequence[metrics.ActionProducts],
     acted: NDArray[np.bool_],
     literal: metrics.ActionProducts,
     literal_cos: Array,
 ) -> dict[str, Array]:
     """Per-trajectory cosine distance and agreement under the definitions of VARIANTS; each
-    is the literal metric on re-weighted dimensions or a narrower set of actions."""
-    v_max = cfg.arbitration.v_max(0)
-    trans = metrics.ActionProducts.of(U_h, U_out, [1.0, 1.0, 1.0, 0.0, 0.0, 0.0])
-    rot = metrics.ActionProducts.of(U_h, U_out, [0.0, 0.0, 0.0, 1.0, 1.0, 1.0])
-    norm = metrics.ActionProducts.of(U_h, U_out, 1.0 / (v_max * v_max))
+    is the literal metric on re-weighted dimensions or a narrower set of actions. `groups`:
+    the actions' products of the translation and of the rotation group."""
+    trans, rot = groups
+    # Divided by the velocity limits: one limit per group (v_max_mps, w_max_radps).
+    a = cfg.arbitration
+    norm = metrics.ActionProducts.combine(
+        groups, (1.0 / (a.v_max_mps * a.v_max_mps), 1.0 / (a.w_max_radps * a.w_max_radps))
+    )
     # The output under 1 mm/s and 1 mrad/s (the planar robot turns about z only).
     still = (trans.oo < DEAD_BAND_MPS**2) & (rot.oo < DEAD_BAND_MPS**2)
     out: dict[str, Array] = {}
