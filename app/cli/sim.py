@@ -292,10 +292,12 @@ def run(args: argparse.Namespace) -> int:
     studies = [cfg] if fig_cfg is cfg else [fig_cfg, cfg]
     show = sys.stderr.isatty() if cmd.progress is None else bool(cmd.progress)
     files = ["summary.json", "summary.md"]
-    example = fig_cfg.example if fig_cfg.example is not None else core.first_lead_index(fig_cfg)
+    example: int | None = None
 
     def example_figures() -> None:
-        # Needs only the configuration: drawn while the workers simulate.
+        # Needs only the configuration: chosen and drawn while the workers simulate.
+        nonlocal example
+        example = fig_cfg.example if fig_cfg.example is not None else core.first_lead_index(fig_cfg)
         files.extend(figures.write_example_figures(fig_cfg, example, out))
 
     def distribution_figure(i: int, res: core.StudyResult) -> None:
@@ -313,7 +315,7 @@ def run(args: argparse.Namespace) -> int:
     (out / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False) + "\n")
     (out / "summary.md").write_text(report.markdown(summary))
     printed = report.brief(summary, out, files, time.monotonic() - t0, cmd.workers)
-    printed["example"] = example if cmd.figures else None
+    printed["example"] = example
     json.dump(printed, sys.stdout, indent=2)
     sys.stdout.write("\n")
     return 0
