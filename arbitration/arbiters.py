@@ -14,9 +14,12 @@ It runs in three passes: the shared part (`_shared`, one compiled kernel over ev
 actions, eq (4)-(7) and eq (3)'s distances, `modes.Quantities`), each mode's alpha rule on
 its own rows, then eq (1)-(2) (`_finish`, one compiled kernel). The kernels take the tick's
 states as one named batch (`TickStates`). Every mode gets P(H), P(R), psi and B, so a viewer
-or a recorder sees the same quantities whatever the mode. The modes are plug-ins
-(`arbitration/modes/`): `manual` alpha = 0; `autonomous` alpha = 1; `S` eq (3); `scalar` eq (3)
-with a cap and a scale; `DS` eq (8) on moving windows of B_i and alpha_i (its own filter state).
+or a recorder sees the same quantities whatever the mode; a caller that reads only the
+actions (the simulation study) may ask for them only where a mode's rule reads them
+(`step(..., every_quantity=False)`: NaN elsewhere, the actions and states unchanged). The
+modes are plug-ins (`arbitration/modes/`): `manual` alpha = 0; `autonomous` alpha = 1; `S`
+eq (3); `scalar` eq (3) with a cap and a scale; `DS` eq (8) on moving windows of B_i and
+alpha_i (its own filter state).
 
 All arrays may carry a leading batch shape (the states broadcast against each other; the
 filter state is made for the tick's batch shape); the loop runs a batch of one, the
@@ -202,6 +205,15 @@ class RowModes:
         the same rows many ticks)."""
         return tuple((m, np.flatnonzero(mask)) for m, mask in self.groups())
 
+    @functools.cached_property
+    def reads_allocation(self) -> Array:
+        """(M,) 1.0 where the row's mode reads eq (4)-(7) (`ModeSpec.reads_allocation`), else
+        0.0: the rows `Arbiter.step(..., every_quantity=False)` computes them for."""
+        reads = np.array([float(m.spec.reads_allocation) for m in self.modes])
+        out = reads[self.codes] if len(self.modes) else np.zeros(self.codes.shape)
+        out.flags.writeable = False
+        return np.asarray(out, dtype=np.float64)
+
     def select(self, keep: NDArray[np.bool_]) -> RowModes:
         """The modes of the rows `keep`."""
         return RowModes(self.codes[keep], self.modes)
@@ -257,7 +269,11 @@ class Arbiter:
         return FilterState(tuple(batch), dims, own)
 
     def step(
-        self, state: FilterState, inp: ArbitrationInput, rows: RowModes | None = None
+        self,
+        state: FilterState,
+        inp: ArbitrationInput,
+        rows: RowModes | None = None,
+        every_quantity: bool = True,
     ) -> tuple[FilterState, ArbitrationStep]:
         """One tick (module docstring); a mode's own filter state changes only when it has
         rows in the tick.
@@ -267,6 +283,11 @@ class Arbiter:
             inp: the tick's states.
             rows: a mode per batch row (a batch that mixes modes, as the simulation study
                 steps every mode of a trajectory at once); None: every row in `mode`.
+            every_quantity: compute eq (4)-(7) (P_human, P_robot, psi, B) for every row;
+                False: only for the rows of modes whose rule reads them
+                (`ModeSpec.reads_allocation`), NaN in the others (the actions, alpha and
+                X_next are the same either way; the study, which reads only those, saves
+                the work).
 
         Raises:
             ConfigError: the filter state was made for another batch shape or dimension count.
@@ -287,17 +308,19 @@ class Arbiter:
         M = math.prod(batch)
         if rows is None:
             groups = [(self.mode, _all_rows(M))]
+            wanted = _EVERY if every_quantity or self.mode.spec.reads_allocation else _NONE
         else:
             if rows.codes.shape != (M,):
                 raise ConfigError(f"modes for {rows.codes.shape} rows, tick of batch {batch}")
             groups = list(rows.index)
+            wanted = _EVERY if every_quantity else rows.reads_allocation
         dt = float(inp.dt)
         X_ref = inp.X_current if inp.X_ref is None else inp.X_ref
         # The named batch, as the plain tuple the kernels take (fields of `TickStates`).
         s = tuple(state_input(X, batch) for X in (*states, X_ref))
         history = np.zeros(D) if inp.history_term is None else inp.history_term
         out, l1 = _shared(
-            s, as_input(history, batch, 1), _per_dim_params(cfg, F, dt),
+            s, as_input(history, batch, 1), wanted, _per_dim_params(cfg, F, dt),
             dt, float(cfg.kappa), float(cfg.p), float(cfg.q), float(cfg.b),
             float(cfg.psi_robot_floor), float(cfg.alloc_floor_m), M,
         )  # fmt: skip
@@ -340,6 +363,11 @@ assert STEP_ARRAYS.index("U_out") == _U_OUT and STEP_ARRAYS[:_U_OUT] == (
 )  # fmt: skip
 
 
+#: `_shared`'s `wanted` for every row and for none (one row, shared by every row).
+_EVERY, _NONE = np.ones(1), np.zeros(1)
+_EVERY.flags.writeable = _NONE.flags.writeable = False
+
+
 @functools.lru_cache(maxsize=16)
 def _all_rows(M: int) -> NDArray[np.intp]:
     """Every row of a batch of M, as the alpha rules take rows (read-only, cached)."""
@@ -365,11 +393,12 @@ def _per_dim_params(cfg: ArbitrationConfig, n_fingers: int, dt: float) -> Array:
 
 @kernel
 def _shared(
-    s: Any, history: Array, params: Array, dt: float, kappa: float, p: float, q: float,
-    b: float, psi_floor: float, floor_m: float, M: int,
+    s: Any, history: Array, wanted: Array, params: Array, dt: float, kappa: float, p: float,
+    q: float, b: float, psi_floor: float, floor_m: float, M: int,
 ) -> tuple[Array, Array]:  # fmt: skip
     """The shared part of one tick of M rows (module docstring); each state of `s` (a
-    `TickStates` as a plain tuple) has M rows or one (shared).
+    `TickStates` as a plain tuple) has M rows or one (shared). Eq (4)-(7) are computed for
+    the rows where `wanted` (M rows or one) is non-zero, NaN elsewhere.
 
     Returns the STEP_ARRAYS (9, M, 6 + F) with alpha and U_out left for the modes and
     `_finish`, and eq (3)'s L1 distances (2, M): goal-current and the floored goal-start.
@@ -408,15 +437,26 @@ def _shared(
         h, hp, hs = row(Hp.shape[0], m), row(Pp.shape[0], m), row(Sp.shape[0], m)
         c, cp, cs = row(Cp.shape[0], m), row(Qp.shape[0], m), row(Tp.shape[0], m)
         gl, hr = row(Gp.shape[0], m), row(history.shape[0], m)
-        diff_into(Gp, GR, Gg, gl, Hp, HR, Hg, h, d, _GOAL_H)
         diff_into(Gp, GR, Gg, gl, Cp, CR, Cg, c, d, _GOAL_R)
         diff_into(Hp, HR, Hg, h, Pp, PR, Pg, hp, d, _PREV_H)
-        diff_into(Cp, CR, Cg, c, Qp, QR, Qg, cp, d, _PREV_R)
-        diff_into(Hp, HR, Hg, h, Sp, SR, Sg, hs, d, _START_H)
-        diff_into(Cp, CR, Cg, c, Tp, TR, Tg, cs, d, _START_R)
         # The two actions (policy.py).
         human_action_into(d, _PREV_H, dt, v_max, U_h, m)
         robot_action_into(d, _GOAL_R, gains, v_max, U_r, m)
+        # Eq (3)'s distances, the robot's position (S and the scalar baseline read them).
+        l1_cur = l1_start = 0.0
+        for i in range(3):
+            l1_cur += abs(Gp[gl, i] - Cp[c, i])
+            l1_start += abs(Gp[gl, i] - Tp[cs, i])
+        l1[0, m] = l1_cur
+        l1[1, m] = max(l1_start, floor_m)
+        if wanted[row(wanted.shape[0], m)] == 0.0:
+            for i in range(D):
+                P_h[m, i] = P_r[m, i] = B[m, i] = psi_h[m, i] = psi_r[m, i] = np.nan
+            continue
+        diff_into(Gp, GR, Gg, gl, Hp, HR, Hg, h, d, _GOAL_H)
+        diff_into(Cp, CR, Cg, c, Qp, QR, Qg, cp, d, _PREV_R)
+        diff_into(Hp, HR, Hg, h, Sp, SR, Sg, hs, d, _START_H)
+        diff_into(Cp, CR, Cg, c, Tp, TR, Tg, cs, d, _START_R)
         # Eq (4)/(5): P(H), P(R); the goal-start distances are the robot's (its start).
         for i in range(D):
             if 3 <= i < 6:
@@ -437,13 +477,6 @@ def _shared(
             psi_r[m, i] = speed_change_of(U_r[m, i], v_max[i], u[0, i], u[1, i], history[hr, i])
         for i in range(D):
             B[m, i] = willingness_of(psi_h[m, i], psi_r[m, i], p, q, b, psi_floor)
-        # Eq (3)'s distances, the robot's position (S and the scalar baseline read them).
-        l1_cur = l1_start = 0.0
-        for i in range(3):
-            l1_cur += abs(Gp[gl, i] - Cp[c, i])
-            l1_start += abs(Gp[gl, i] - Tp[cs, i])
-        l1[0, m] = l1_cur
-        l1[1, m] = max(l1_start, floor_m)
     return out, l1
 
 

@@ -57,6 +57,7 @@ sum 1), base 2, so it is bounded in [0, 1]:
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -186,6 +187,30 @@ class ActionProducts:
             np.einsum("...i,...i,i->...", a, a, w),
             np.einsum("...i,...i,i->...", b, b, w),
         )
+
+    @classmethod
+    def of_groups(
+        cls, U_h: ArrayLike, U_out: ArrayLike, groups: Sequence[slice]
+    ) -> list[ActionProducts]:
+        """`of` on each group of dimensions alone (`of` with weights 1 in the group, 0
+        elsewhere), reading only the group's dimensions."""
+        a = np.asarray(U_h, dtype=np.float64)
+        b = np.asarray(U_out, dtype=np.float64)
+        return [cls.of(a[..., g], b[..., g]) for g in groups]
+
+    @classmethod
+    def combine(cls, parts: Sequence[ActionProducts], weights: Sequence[float]) -> ActionProducts:
+        """sum_k weights[k] parts[k]: the products of disjoint groups of dimensions (`of_groups`)
+        under one weight per group (the same as `of` with those per-dimension weights, to
+        the rounding of the sums)."""
+
+        def total(field: str) -> Array:
+            out = weights[0] * getattr(parts[0], field)
+            for p, w in zip(parts[1:], weights[1:], strict=True):
+                out = out + w * getattr(p, field)
+            return np.asarray(out)
+
+        return cls(total("dot"), total("hh"), total("oo"))
 
 
 def idle_actions(p: ActionProducts, tol: float = IDLE_TOL) -> NDArray[np.bool_]:

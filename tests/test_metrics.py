@@ -64,6 +64,29 @@ def test_idle_actions_are_skipped_alike_by_both_metrics() -> None:
     assert float(c.total) == pytest.approx(2.0 + 1.0 - 1.0 / math.sqrt(2.0))
 
 
+@given(
+    hnp.arrays(np.float64, st.tuples(st.integers(1, 8), st.just(6)), elements=finite),
+    hnp.arrays(np.float64, st.tuples(st.integers(1, 8), st.just(6)), elements=finite),
+    st.floats(0.1, 10.0),
+    st.floats(0.1, 10.0),
+)
+@settings(max_examples=50, deadline=None)
+def test_group_products_combine_to_the_weighted_ones(
+    a: NDArray[np.float64], b: NDArray[np.float64], w_t: float, w_r: float
+) -> None:
+    """Products of the translation and rotation groups, combined with one weight each, are
+    `of` with those weights per dimension (to the rounding of the sums)."""
+    n = min(len(a), len(b))
+    a, b = a[:n], b[:n]
+    parts = metrics.ActionProducts.of_groups(a, b, (slice(0, 3), slice(3, 6)))
+    whole = metrics.ActionProducts.of(a, b, [w_t] * 3 + [w_r] * 3)
+    got = metrics.ActionProducts.combine(parts, (w_t, w_r))
+    for name in ("dot", "hh", "oo"):
+        np.testing.assert_allclose(getattr(got, name), getattr(whole, name), rtol=1e-12, atol=1e-9)
+    plain = metrics.ActionProducts.combine(parts, (1.0, 1.0))
+    np.testing.assert_allclose(plain.dot, metrics.ActionProducts.of(a, b).dot, atol=1e-9)
+
+
 def test_metrics_batch_and_mask() -> None:
     U_h = np.array([[[1.0, 0.0], [1.0, 0.0]], [[0.0, 1.0], [0.0, 1.0]]])
     U_out = np.array([[[1.0, 0.0], [-1.0, 0.0]], [[0.0, 2.0], [5.0, 0.0]]])

@@ -129,6 +129,35 @@ def test_a_mixed_batch_with_a_new_mode_equals_each_mode_alone(share: Mode) -> No
     np.testing.assert_allclose(mixed.alpha[share_rows], 0.8 * mixed.P_robot[share_rows])
 
 
+def test_only_the_quantities_a_mode_reads_changes_no_action(share: Mode) -> None:
+    """every_quantity=False (the study's ticks): alpha, the actions, U_out and X_next are
+    those of a full tick; eq (4)-(7) are computed for the rows of modes that read them (DS,
+    and a plug-in that does not say otherwise) and NaN in the others."""
+    rng = np.random.default_rng(5)
+    modes = [share, Mode.DS, Mode.S, Mode.SCALAR, Mode.MANUAL, Mode.AUTONOMOUS] * 2
+    M = len(modes)
+    arb = make_arbiter(Mode.DS, ArbitrationConfig(window=3))
+    rows = RowModes.of(modes)
+    fs_full, fs_part = arb.initial_state(10, (M,)), arb.initial_state(10, (M,))
+    reads = np.array([m in (share, Mode.DS) for m in modes])
+    for _ in range(4):  # through DS's windows
+        inp = _input(rng, M)
+        fs_full, full = arb.step(fs_full, inp, rows)
+        fs_part, part = arb.step(fs_part, inp, rows, every_quantity=False)
+        for name in ("alpha", "U_human", "U_robot", "U_out"):
+            np.testing.assert_array_equal(getattr(part, name), getattr(full, name))
+        np.testing.assert_array_equal(part.X_next.rotation, full.X_next.rotation)
+        for name in ("P_human", "P_robot", "B", "psi_human", "psi_robot"):
+            np.testing.assert_array_equal(getattr(part, name)[reads], getattr(full, name)[reads])
+            assert np.isnan(getattr(part, name)[~reads]).all()
+    # A single-mode batch: S reads none of them, DS all.
+    for mode, computed in ((Mode.S, False), (Mode.DS, True)):
+        single = make_arbiter(mode)
+        _, step = single.step(single.initial_state(10, (2,)), _input(rng, 2), every_quantity=False)
+        assert bool(np.isfinite(step.P_robot).all()) is computed
+        assert np.isfinite(step.U_out).all()
+
+
 def test_the_study_and_tune_run_a_new_mode(share: Mode) -> None:
     cfg = SimConfig(trajectories=3, modes=(Mode.S, share), max_paths=0)
     chunk = run_chunk(cfg, [0, 1, 2])

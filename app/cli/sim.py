@@ -288,26 +288,34 @@ def run(args: argparse.Namespace) -> int:
     # Fig. 5/6 and the x-per-y remark come from an operator who does not watch the robot, as
     # in the paper: the run itself for an open-loop operator, else an open-loop companion.
     fig_cfg = core.figure_study(cfg)
-    studies = [cfg] if fig_cfg is cfg else [cfg, fig_cfg]
+    # The companion first: its figure is drawn here while the workers run the study.
+    studies = [cfg] if fig_cfg is cfg else [fig_cfg, cfg]
     show = sys.stderr.isatty() if cmd.progress is None else bool(cmd.progress)
     files = ["summary.json", "summary.md"]
-    example = fig_cfg.example if fig_cfg.example is not None else core.first_lead_index(fig_cfg)
+    example: int | None = None
 
     def example_figures() -> None:
-        # Needs only the configuration: drawn while the workers simulate.
+        # Needs only the configuration: chosen and drawn while the workers simulate.
+        nonlocal example
+        example = fig_cfg.example if fig_cfg.example is not None else core.first_lead_index(fig_cfg)
         files.extend(figures.write_example_figures(fig_cfg, example, out))
+
+    def distribution_figure(i: int, res: core.StudyResult) -> None:
+        if i == 0:  # the figure study's (the only study, or its companion's)
+            files.insert(2, figures.write_distribution_figure(res, out))
 
     total = sum(c.trajectories * len(c.modes) * c.runs for c in studies)
     with Progress(total, sys.stderr, show, "sim", "trajectory-modes") as bar:
-        results = simulate_all(studies, cmd.workers, bar, example_figures if cmd.figures else None)
-    result, fig_result = results[0], results[-1]
+        results = simulate_all(
+            studies, cmd.workers, bar, example_figures if cmd.figures else None,
+            distribution_figure if cmd.figures else None,
+        )  # fmt: skip
+    fig_result, result = results[0], results[-1]
     summary = core.summarise(result, fig_result)
     (out / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False) + "\n")
     (out / "summary.md").write_text(report.markdown(summary))
-    if cmd.figures:
-        files.insert(2, figures.write_distribution_figure(fig_result, out))
     printed = report.brief(summary, out, files, time.monotonic() - t0, cmd.workers)
-    printed["example"] = example if cmd.figures else None
+    printed["example"] = example
     json.dump(printed, sys.stdout, indent=2)
     sys.stdout.write("\n")
     return 0

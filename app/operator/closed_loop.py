@@ -57,7 +57,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dsteleop.app.operator.world import Impairments
-from dsteleop.arbitration.se3 import FING, ROT, TRANS, HandState, diff, so3_exp
+from dsteleop.arbitration.se3 import FING, ROT, TRANS, HandState, diff, integrate, so3_exp
 
 Array = NDArray[np.float64]
 Interval = tuple[float, float]
@@ -369,12 +369,10 @@ class ClosedLoopOperator:
             return
         u = np.clip((t_s - r.sub_t0[m]) / r.sub_T[m], 0.0, 1.0)
         s = (u * u * u * (10.0 + u * (-15.0 + 6.0 * u)))[:, None]
-        delta, start = r.sub_delta[m], r.sub_from
-        pos, rot, opn = r.hand.position.copy(), r.hand.rotation.copy(), r.hand.openness.copy()
-        pos[m] = start.position[m] + s * delta[:, TRANS]
-        rot[m] = so3_exp(s * delta[:, ROT]) @ start.rotation[m]
-        opn[m] = np.clip(start.openness[m] + s * delta[:, FING], 0.0, 1.0)
-        r.hand = HandState(pos, rot, opn)
+        # The start pose moved by the share s of the displacement: p + s dp, exp(s dw) R,
+        # clip(g + s dg, 0, 1), which is eq (2)'s integration of s delta for 1 s.
+        moved = integrate(r.sub_from.take(m), s * r.sub_delta[m], 1.0)
+        r.hand = _put(r.hand, m, moved)
         ended = m[u >= 1.0]
         if ended.size:
             r.moving[ended] = False

@@ -84,6 +84,7 @@ from dsteleop.arbitration import (
     so3_exp,
 )
 from dsteleop.arbitration.history import history_terms
+from dsteleop.arbitration.se3 import ROT, TRANS
 from dsteleop.arbitration.se3 import stack as stack_states
 from dsteleop.errors import ConfigError
 from dsteleop.robot.task import Phase
@@ -630,12 +631,14 @@ def run_chunk(
     runs: list[dict[str, ModeResult]] = []
     history: Array | None = None
     terminals: list[Array] = []  # per run, the hands' final (x, y, heading), (C N, 3)
+    tape: _Tape | None = None  # one recording for every run (its pages are touched once)
     for a in range(A):
         goals, lead, hands = _hands_for(cfg, idx, C, a)
+        tape = _Tape(hands.T, C * N) if tape is None else tape
         runs.append(
             _run_modes(
                 cfg, cfg.modes, hands, goals, ranges, n_paths if a == 0 else 0, on_progress,
-                history, a,
+                history, a, tape,
             )
         )  # fmt: skip
         if a + 1 < A:  # eq (6)'s last term for the next run: this person's runs so far
@@ -720,15 +723,15 @@ def example(cfg: SimConfig, index: int, mode: Mode) -> Example:
         t_s=t[1:],
         arbitrated=np.ones(L - 1, dtype=bool),
         step=step,
-        p_human=np.concatenate([hand[0, 1:L, :2], np.zeros((L - 1, 1))], -1),
-        p_robot=np.concatenate([robot[0, 1:L, :2], np.zeros((L - 1, 1))], -1),
+        p_human=np.concatenate([hand[1:L, 0, :2], np.zeros((L - 1, 1))], -1),
+        p_robot=np.concatenate([robot[1:L, 0, :2], np.zeros((L - 1, 1))], -1),
         p_goal=np.tile([*goal[:2], 0.0], (L - 1, 1)),
         phases=(Phase.PICK,) * (L - 1),
         outcome=None,
         time_s=float((L - 1) * cfg.dt_s),
         v_max=cfg.arbitration.v_max(0),
     )
-    return Example(tr, t, hand[0, :L], robot[0, :L])
+    return Example(tr, t, hand[:L, 0], robot[:L, 0])
 
 
 def trace(cfg: SimConfig, index: int, mode: Mode) -> Trace:
@@ -834,26 +837,69 @@ class _ClosedHands(_Hands):
         self.prev = self.prev.take(keep)
 
 
+class _Tape:
+    """The recording of one simulation of J rows of up to T states, time-major (one
+    contiguous block per tick), reusable by the next run of the same shape (a run touches
+    fresh memory pages only once per chunk, not once per run).
+
+    The states are uninitialised where not written: every state before a row's length is
+    written (a row leaves the batch only after its trial ended) and `_simulate` sets the rest
+    to NaN. The actions start at zero and are counted only where `acted` (cleared for each
+    run; elsewhere they hold an earlier run's finite values or zero).
+
+    Attributes:
+        robot, hand: (T, J, 3) x, y and (at the end) the heading per state.
+        robot_cs, hand_cs: (T, J, 2) the heading's cos and sin per state.
+        U_human, U_out: (T - 1, J, 6) the actions of each tick.
+        acted: (T - 1, J) the tick belongs to the row's trial.
+    """
+
+    def __init__(self, T: int, J: int) -> None:
+        self.shape = (T, J)
+        self.robot, self.hand = np.empty((T, J, 3)), np.empty((T, J, 3))
+        self.robot_cs, self.hand_cs = np.empty((T, J, 2)), np.empty((T, J, 2))
+        self.U_human, self.U_out = np.zeros((T - 1, J, 6)), np.zeros((T - 1, J, 6))
+        self.acted = np.zeros((T - 1, J), dtype=bool)
+        self._used = 0  # ticks the last run wrote
+
+    def start(self, T: int, J: int) -> _Tape:
+        """Ready for a run of the same shape: no tick acted yet."""
+        if (T, J) != self.shape:
+            raise ValueError(f"a tape of {self.shape} for a run of {(T, J)}")
+        self.acted[: self._used] = False
+        self._used = 0
+        return self
+
+    def act(self, k: int, rows: NDArray[np.int64], U_h: Array, U_out: Array) -> None:
+        """Tick k's actions of `rows` (they belong to the rows' trials)."""
+        self.U_human[k, rows] = U_h
+        self.U_out[k, rows] = U_out
+        self.acted[k, rows] = True
+        self._used = k + 1
+
+
 def _simulate(
     cfg: SimConfig,
     modes: Sequence[Mode],
     hands: _Hands,
     goals: Array,
     record: list[ArbitrationStep] | None = None,
-    on_step: Callable[[int, NDArray[np.int64], Array, Array], None] | None = None,
     on_progress: Callable[[int], None] | None = None,
     history: Array | None = None,
+    tape: _Tape | None = None,
 ) -> tuple[Array, NDArray[np.int64], Array]:
     """Step the batch of len(modes) x N rows (row j = m N + n: trajectory n under mode m)
-    through time. Returns the robot's and the hand's (x, y, heading), (C N, T, 3) each, NaN
-    past the end of each trial, and the trials' lengths (states).
+    through time. Returns the robot's and the hand's (x, y, heading), time-major (T, C N, 3)
+    each (T: the longest trial), NaN past the end of each trial, and the trials' lengths
+    (states).
 
     One arbiter steps the mixed batch (`RowModes`). Rows whose trial has ended are
     dropped from the batch every few ticks (the arbitration is row-wise, so this changes no
-    result, only the work). on_step(k, rows, U_human, U_out) is called after tick k with the
-    rows whose trial includes tick k; on_progress with counts of trials that ended; `record`
-    (one mode only) gets every step; `history` (C N, 6) is eq (6)'s history term of each row
-    (None: no previous runs).
+    result, only the work). The states and the actions of the rows whose trial includes a
+    tick go on `tape` (a fresh one when None; the returned poses are views of it);
+    on_progress is called with counts of trials that ended; `record` (one mode only) gets
+    every step; `history` (C N, 6) is eq (6)'s history term of each row (None: no previous
+    runs).
     """
     C, N = len(modes), goals.shape[0]
     if record is not None and C != 1:
@@ -872,13 +918,10 @@ def _simulate(
     hist = history
     X, Xp, X0r = X0, X0, X0
     H0 = hands.start()
-    # Robot and hand (x, y) and (cos, sin) of the heading per state. Uninitialised: every
-    # entry before a row's length is written (a row leaves the batch only after its trial
-    # ended), and `poses` sets the rest to NaN; untouched pages past the longest trial are
-    # never allocated.
-    xy, cs, hxy, hcs = (np.empty((T, J, 2)) for _ in range(4))
-    xy[0], cs[0] = X.position[:, :2], X.rotation[:, :2, 0]
-    hxy[0], hcs[0] = H0.position[:, :2], H0.rotation[:, :2, 0]
+    tape = (_Tape(T, J) if tape is None else tape).start(T, J)
+    xy, hxy, cs, hcs = tape.robot, tape.hand, tape.robot_cs, tape.hand_cs
+    xy[0, :, :2], cs[0] = X.position[:, :2], X.rotation[:, :2, 0]
+    hxy[0, :, :2], hcs[0] = H0.position[:, :2], H0.rotation[:, :2, 0]
     hands.observe(0.0, X)
     reported = 0
     for k in range(T - 1):
@@ -905,32 +948,32 @@ def _simulate(
             X_human=H, X_human_prev=Hp, X_human_start=H0, X_current=X, X_prev=Xp, X_start=X0r,
             X_goal=G, dt=cfg.dt_s, history_term=hist,
         )  # fmt: skip
-        state, step = arb.step(state, inp, mixed)
+        # The study reads the actions and states only: eq (4)-(7) just where a mode's rule
+        # reads them (every quantity when every step is recorded).
+        state, step = arb.step(state, inp, mixed, every_quantity=record is not None)
         Xp, X = X, step.X_next
         hands.observe(t_next, X)
-        xy[k + 1, rows], cs[k + 1, rows] = X.position[:, :2], X.rotation[:, :2, 0]
-        hxy[k + 1, rows], hcs[k + 1, rows] = H.position[:, :2], H.rotation[:, :2, 0]
+        xy[k + 1, rows, :2], cs[k + 1, rows] = X.position[:, :2], X.rotation[:, :2, 0]
+        hxy[k + 1, rows, :2], hcs[k + 1, rows] = H.position[:, :2], H.rotation[:, :2, 0]
         if record is not None:
             record.append(step)
-        if on_step is not None:
-            act = hands.lengths[rows] > k + 1
-            if act.all():
-                on_step(k, rows, step.U_human, step.U_out)
-            elif act.any():
-                on_step(k, rows[act], step.U_human[act], step.U_out[act])
+        act = hands.lengths[rows] > k + 1
+        if act.all():
+            tape.act(k, rows, step.U_human, step.U_out)
+        elif act.any():
+            tape.act(k, rows[act], step.U_human[act], step.U_out[act])
     if on_progress is not None and J > reported:
         on_progress(J - reported)
     lengths = np.minimum(hands.lengths, T)
     T = int(lengths.max())  # the longest trial (closed loop: often far under the limit)
-    past = np.arange(T)[None, :] >= lengths[:, None]
+    past = np.arange(T)[:, None] >= lengths[None, :]
 
     def poses(p: Array, c: Array) -> Array:
-        out = np.empty((J, T, 3))
-        out[..., :2] = np.swapaxes(p[:T], 0, 1)
+        out = p[:T]
         # Past a row's length the buffers hold whatever memory held (overwritten with NaN
         # just below), which may be NaN: no warning for those entries.
         with np.errstate(invalid="ignore"):
-            out[..., 2] = np.arctan2(c[:T, :, 1], c[:T, :, 0]).T
+            out[..., 2] = np.arctan2(c[:T, :, 1], c[:T, :, 0])
         np.copyto(out, np.nan, where=past[..., None])
         return out
 
@@ -957,25 +1000,20 @@ def _run_modes(
     on_progress: Callable[[int], None] | None = None,
     history: Array | None = None,
     attempt: int = 0,
+    tape: _Tape | None = None,
 ) -> dict[str, ModeResult]:
-    """Simulate every mode in one batch (`_simulate`), then each mode's metrics (run
-    `attempt`, with eq (6)'s history term `history` (C N, 6) per row, None for none)."""
-    T, N = hands.T, goals.shape[0]
+    """Simulate every mode in one batch (`_simulate`, recording on `tape`, a fresh one when
+    None), then each mode's metrics (run `attempt`, with eq (6)'s history term `history`
+    (C N, 6) per row, None for none). Every action of every trial is recorded, time-major;
+    the metrics are computed afterwards over whole arrays with dsteleop.arbitration.metrics
+    (the results hold no view of the tape)."""
+    N = goals.shape[0]
     J = len(modes) * N
-    # Every action of every trial, time-major (one contiguous write per tick); the metrics
-    # are computed afterwards over whole arrays with dsteleop.arbitration.metrics.
-    U_h_all = np.zeros((T - 1, J, 6))
-    U_out_all = np.zeros((T - 1, J, 6))
-    acted = np.zeros((T - 1, J), dtype=bool)
-
-    def on_step(k: int, rows: NDArray[np.int64], U_h: Array, U_out: Array) -> None:
-        U_h_all[k, rows] = U_h
-        U_out_all[k, rows] = U_out
-        acted[k, rows] = True
-
+    tape = _Tape(hands.T, J) if tape is None else tape
     poses, lengths, hand = _simulate(
-        cfg, modes, hands, goals, on_step=on_step, on_progress=on_progress, history=history
+        cfg, modes, hands, goals, on_progress=on_progress, history=history, tape=tape
     )
+    U_h_all, U_out_all, acted = tape.U_human, tape.U_out, tape.acted
     h_norm = np.zeros(J) if history is None else np.abs(history).sum(-1)
     out = {}
     for c, mode in enumerate(modes):
@@ -984,9 +1022,9 @@ def _run_modes(
         Tm = int(L.max())  # this mode's longest trial
         out[mode.value] = _mode_result(
             cfg,
-            poses[part, :Tm],
+            poses[:Tm, part],
             L,
-            hand[part, :Tm],
+            hand[:Tm, part],
             hands.gave_up[part],
             hands.committed[part],
             U_h_all[: Tm - 1, part],
@@ -1002,9 +1040,9 @@ def _run_modes(
 
 def _mode_result(
     cfg: SimConfig,
-    poses: Array,
+    poses_tm: Array,
     lengths: NDArray[np.int64],
-    hand: Array,
+    hand_tm: Array,
     gave_up: NDArray[np.bool_],
     committed: NDArray[np.bool_],
     U_h_tm: Array,
@@ -1015,15 +1053,19 @@ def _mode_result(
     attempt: int = 0,
     history_norm: Array | None = None,
 ) -> ModeResult:
-    """One mode's per-trajectory results from its states (N, T, 3) and its actions,
-    time-major (T - 1, N, ...). A closed-loop trial succeeds only if its operator committed
-    and the robot's settled pose (the trial's last) is in the success region."""
-    N, T = poses.shape[:2]
+    """One mode's per-trajectory results from its robot's and hand's states (T, N, 3) and
+    its actions (T - 1, N, ...), time-major. A closed-loop trial succeeds only if its operator
+    committed and the robot's settled pose (the trial's last) is in the success region."""
+    T, N = poses_tm.shape[:2]
+    # (N, T, ...) views, as for the actions below.
+    poses, hand = np.swapaxes(poses_tm, 0, 1), np.swapaxes(hand_tm, 0, 1)
     # (N, T - 1, ...) views: the metrics reduce over the time axis wherever it lies in memory.
     U_h_all, U_out_all = np.swapaxes(U_h_tm, 0, 1), np.swapaxes(U_out_tm, 0, 1)
     acted = acted_tm.T
-    # The literal definitions (the headline), from the actions' products, computed once.
-    lit = metrics.ActionProducts.of(U_h_all, U_out_all)
+    # The actions' products per group (translation, rotation: the planar study has no
+    # fingers), computed once; the literal definitions (the headline) weigh both alike.
+    groups = metrics.ActionProducts.of_groups(U_h_all, U_out_all, (TRANS, ROT))
+    lit = metrics.ActionProducts.combine(groups, (1.0, 1.0))
     c = metrics.cosine_distances(lit)
     cos = metrics.summarise_cosines(c, acted)
     ag = metrics.agreement_of(lit, acted)
@@ -1051,25 +1093,26 @@ def _mode_result(
         -1,
     )
     valid = np.arange(T)[None, :] < lengths[:, None]
-    inside = in_success_region(
-        poses[..., :2],
-        poses[..., 2],
-        cfg.handle_xy_m,
-        cfg.handle_normal_rad,
-        cfg.success_radius_m,
-        cfg.success_heading_rad,
-    )
     rows = np.arange(N)
     last = lengths - 1
-    success = inside[rows, last] & committed
-    if cfg.closed_loop:  # the operator decides when the trial is done
+
+    def inside(p: Array) -> NDArray[np.bool_]:
+        return in_success_region(
+            p[..., :2], p[..., 2], cfg.handle_xy_m, cfg.handle_normal_rad,
+            cfg.success_radius_m, cfg.success_heading_rad,
+        )  # fmt: skip
+
+    if cfg.closed_loop:  # the operator decides when the trial is done: its settled pose
+        success = inside(poses[rows, last]) & committed
         time_s = np.maximum(last, 1) * cfg.dt_s
     else:  # settling time: the first tick after the last one outside the region
-        outside = valid & ~inside
+        inside_all = inside(poses)
+        success = inside_all[rows, last] & committed
+        outside = valid & ~inside_all
         last_out = np.where(outside.any(1), T - 1 - np.argmax(outside[:, ::-1], axis=1), -1)
         settle = (last_out + 1) * cfg.dt_s
         time_s = np.where(success, np.maximum(settle, cfg.dt_s), last * cfg.dt_s)
-    hand_valid = valid & np.isfinite(hand[..., 0])
+    hand_valid = valid.T & np.isfinite(hand_tm[..., 0])  # time-major
     return ModeResult(
         success=success,
         time_s=time_s,
@@ -1078,7 +1121,7 @@ def _mode_result(
         agreement=ag.ratio,
         n_actions=cos.n_actions,
         final=poses[rows, last],
-        hist=metrics.trajectory_histogram(poses[valid], HIST_BINS, ranges),
+        hist=metrics.trajectory_histogram(poses_tm[valid.T], HIST_BINS, ranges),
         paths=_paths(poses[:n_paths], lengths[:n_paths]),
         phase_cos=ph_cos,
         phase_agree=ph_ag,
@@ -1086,9 +1129,9 @@ def _mode_result(
         lengths=lengths,
         gave_up=gave_up,
         n_idle=cos.n_skipped,
-        hand_hist=metrics.trajectory_histogram(hand[hand_valid], HIST_BINS, ranges),
+        hand_hist=metrics.trajectory_histogram(hand_tm[hand_valid], HIST_BINS, ranges),
         hand_paths=_paths(hand[:n_paths], lengths[:n_paths]),
-        variants=_variants(cfg, U_h_all, U_out_all, acted, lit, c),
+        variants=_variants(cfg, groups, acted, lit, c),
         committed=committed,
         hand_final=hand[rows, last],
         attempt=np.full(N, attempt, dtype=np.int64),
@@ -1110,18 +1153,20 @@ VARIANTS = {
 
 def _variants(
     cfg: SimConfig,
-    U_h: Array,
-    U_out: Array,
+    groups: Sequence[metrics.ActionProducts],
     acted: NDArray[np.bool_],
     literal: metrics.ActionProducts,
     literal_cos: Array,
 ) -> dict[str, Array]:
     """Per-trajectory cosine distance and agreement under the definitions of VARIANTS; each
-    is the literal metric on re-weighted dimensions or a narrower set of actions."""
-    v_max = cfg.arbitration.v_max(0)
-    trans = metrics.ActionProducts.of(U_h, U_out, [1.0, 1.0, 1.0, 0.0, 0.0, 0.0])
-    rot = metrics.ActionProducts.of(U_h, U_out, [0.0, 0.0, 0.0, 1.0, 1.0, 1.0])
-    norm = metrics.ActionProducts.of(U_h, U_out, 1.0 / (v_max * v_max))
+    is the literal metric on re-weighted dimensions or a narrower set of actions. `groups`:
+    the actions' products of the translation and of the rotation group."""
+    trans, rot = groups
+    # Divided by the velocity limits: one limit per group (v_max_mps, w_max_radps).
+    a = cfg.arbitration
+    norm = metrics.ActionProducts.combine(
+        groups, (1.0 / (a.v_max_mps * a.v_max_mps), 1.0 / (a.w_max_radps * a.w_max_radps))
+    )
     # The output under 1 mm/s and 1 mrad/s (the planar robot turns about z only).
     still = (trans.oo < DEAD_BAND_MPS**2) & (rot.oo < DEAD_BAND_MPS**2)
     out: dict[str, Array] = {}

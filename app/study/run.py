@@ -68,13 +68,21 @@ def simulate_all(
     workers: int,
     bar: Progress | None = None,
     meanwhile: Callable[[], None] | None = None,
+    ready: Callable[[int, StudyResult], None] | None = None,
 ) -> list[StudyResult]:
-    """`simulate` for several studies at once, over one pool of workers."""
+    """`simulate` for several studies at once, over one pool of workers.
+
+    The studies' chunks are computed in the order of `cfgs`, and `ready(i, result)` is called
+    in this process as soon as study i is complete, while the workers go on with the others
+    (put a small study whose result is wanted early, e.g. to draw its figure, first).
+    """
     if workers <= 1:
         out = []
-        for cfg in cfgs:
+        for i, cfg in enumerate(cfgs):
             chunk = run_chunk(cfg, list(range(cfg.trajectories)), bar.advance if bar else None)
             out.append(merge(cfg, [chunk]))
+            if ready is not None:
+                ready(i, out[-1])
         if meanwhile is not None:
             meanwhile()
         return out
@@ -90,22 +98,33 @@ def simulate_all(
         compile_kernels()
     ctx = mp.get_context("fork" if fork else "spawn")
     queue = ctx.SimpleQueue()
-    with ctx.Pool(workers, initializer=_init_worker, initargs=(queue,)) as pool:
-        pending = pool.map_async(_work, [(cfg, idx) for _, cfg, idx in jobs], chunksize=1)
-        if meanwhile is not None:
-            meanwhile()
-        while not pending.ready():
-            pending.wait(0.1)
-            while not queue.empty():
-                done = queue.get()
-                if bar:
-                    bar.advance(done)
-        chunks = pending.get()
+
+    def progress() -> None:
         while not queue.empty():
             done = queue.get()
             if bar:
                 bar.advance(done)
-    return [
-        merge(cfg, [c for (j, _, _), c in zip(jobs, chunks, strict=True) if j == i])
-        for i, cfg in enumerate(cfgs)
-    ]
+
+    chunks: dict[int, ChunkResult] = {}
+    results: dict[int, StudyResult] = {}
+    with ctx.Pool(workers, initializer=_init_worker, initargs=(queue,)) as pool:
+        # The pool hands the jobs out in this order.
+        pending = [pool.apply_async(_work, ((cfg, idx),)) for _, cfg, idx in jobs]
+        if meanwhile is not None:
+            meanwhile()
+        while len(results) < len(cfgs):
+            waiting = [j for j in range(len(jobs)) if j not in chunks]
+            if waiting:
+                pending[waiting[0]].wait(0.1)
+            for j in waiting:
+                if pending[j].ready():
+                    chunks[j] = pending[j].get()
+            progress()
+            for i, cfg in enumerate(cfgs):
+                mine = [j for j, (k, _, _) in enumerate(jobs) if k == i]
+                if i not in results and all(j in chunks for j in mine):
+                    results[i] = merge(cfg, [chunks[j] for j in mine])
+                    if ready is not None:
+                        ready(i, results[i])
+        progress()
+    return [results[i] for i in range(len(cfgs))]

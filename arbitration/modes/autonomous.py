@@ -9,4 +9,10 @@ def alpha(params: None, q: Quantities, rows: Rows, state: None) -> None:
     q.alpha[rows] = 1.0
 
 
-SPEC = ModeSpec("autonomous", "AUTONOMOUS", alpha, "alpha = 1: the robot's policy alone")
+SPEC = ModeSpec(
+    "autonomous",
+    "AUTONOMOUS",
+    alpha,
+    "alpha = 1: the robot's policy alone",
+    reads_allocation=False,
+)

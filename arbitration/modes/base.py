@@ -15,6 +15,9 @@ mode's alpha rule on that mode's rows, then eq (1)-(2) for every row. A mode is 
                   app/tune/space.py; its own parameters are `<name>.<field>`)
     initial_state its own filter state for a batch of M rows (None: it has none); a state has
                   `select(keep)`, the state of the rows `keep`
+    reads_allocation  whether its rule reads P(H), P(R), psi or B (eq 4-7; True unless it
+                  says otherwise): a caller that needs only the actions (the study,
+                  `Arbiter.step(..., every_quantity=False)`) skips them for the other rows
 """
 
 from __future__ import annotations
@@ -84,6 +87,8 @@ class ModeSpec:
         params: the class of its own parameters (a frozen dataclass), or None.
         space: its default `dsteleop tune` search space.
         initial_state: (config, dims, M) -> its own filter state, or None.
+        reads_allocation: its rule reads P_human, P_robot, psi_human, psi_robot or B of
+            `Quantities` (False: only the actions, alpha and eq (3)'s distances).
     """
 
     name: str
@@ -93,6 +98,7 @@ class ModeSpec:
     params: type | None = None
     space: tuple[str, ...] = ()
     initial_state: Callable[[ArbitrationConfig, int, int], Any] | None = None
+    reads_allocation: bool = True
 
 
 def check_range(

@@ -9,4 +9,4 @@ def alpha(params: None, q: Quantities, rows: Rows, state: None) -> None:
     q.alpha[rows] = 0.0
 
 
-SPEC = ModeSpec("manual", "MANUAL", alpha, "alpha = 0: the hand alone")
+SPEC = ModeSpec("manual", "MANUAL", alpha, "alpha = 0: the hand alone", reads_allocation=False)

@@ -16,4 +16,10 @@ def alpha(params: None, q: Quantities, rows: Rows, state: None) -> None:
     capped_standard_rows(q.l1_goal_current_m, q.l1_goal_start_m, 1.0, 1.0, rows, q.alpha)
 
 
-SPEC = ModeSpec("S", "S", alpha, "eq (3): one alpha for all dimensions from the position")
+SPEC = ModeSpec(
+    "S",
+    "S",
+    alpha,
+    "eq (3): one alpha for all dimensions from the position",
+    reads_allocation=False,
+)
