@@ -35,7 +35,7 @@ from dsteleop.tracking.pipeline import HandTracker, TrackingStream
 from dsteleop.tracking.sources import VideoFileSource
 from dsteleop.tracking.synthetic import SyntheticSource, scripted_trajectory
 
-from .fakes import DT, FakePlant, FramedHand, ScriptedHand, state
+from .fakes import DT, FramedHand, ScriptedHand, fake_world, state
 
 START = state((0.5, 0.3, 0.4))
 P = DT  # the loop's period at 30 Hz
@@ -63,7 +63,7 @@ def run_following(
     hand: ScriptedHand, seconds: float, follow: bool = True, path=still
 ) -> tuple[list[TickTiming], list[TickRecord]]:
     loop = TeleopLoop(
-        LoopConfig(mode=Mode.MANUAL), hand, FakePlant(start=START), clock=hand_clock(hand),
+        LoopConfig(mode=Mode.MANUAL), hand, *fake_world(start=START), clock=hand_clock(hand),
         follow_frames=follow,
     )  # fmt: skip
     timings, records = [], []
@@ -210,7 +210,7 @@ def live_loop(fps: float) -> tuple[TeleopLoop, TrackingStream]:
     stream = TrackingStream(source, HandTracker())
     hand = TrackedHandInput.from_stream(stream.open(), WorkspaceMapping(), follow=True)
     cfg = LoopConfig(mode=Mode.MANUAL)
-    return TeleopLoop(cfg, hand, FakePlant(start=START), clock=MonotonicClock()), stream
+    return TeleopLoop(cfg, hand, *fake_world(start=START), clock=MonotonicClock()), stream
 
 
 def test_on_the_real_clock_ticks_follow_the_frames_of_a_live_stream() -> None:

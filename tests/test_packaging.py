@@ -74,7 +74,8 @@ def test_mediapipe_is_the_pinned_release() -> None:
 
 
 def test_mediapipe_has_the_tasks_hand_landmarker() -> None:
-    """The tracker's one code path (tracking/detector.py): the Tasks API; its model comes from this package, not from the mediapipe wheel."""
+    """The tracker's one code path (tracking/detector.py): the Tasks API; its model comes
+    from this package, not from the mediapipe wheel."""
     import importlib
 
     vision = importlib.import_module("mediapipe.tasks.python.vision")
