@@ -12,12 +12,14 @@ file, an empty folder, a camera that does not open (with the cameras that do).
 
 from __future__ import annotations
 
+import contextlib
 import glob
 import importlib
 import logging
 import math
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal, Protocol
@@ -293,9 +295,7 @@ def available_cameras() -> list[str]:
         return []
     candidates: list[str | int] = list(devices) if devices else list(_PROBE_INDICES)
     found = []
-    level = cv2.getLogLevel()
-    cv2.setLogLevel(0)  # silent
-    try:
+    with _opencv_silent(cv2):
         for cand in candidates:
             cap = cv2.VideoCapture(cand)
             try:
@@ -303,9 +303,20 @@ def available_cameras() -> list[str]:
                     found.append(str(cand))
             finally:
                 cap.release()
-    finally:
-        cv2.setLogLevel(level)
     return found
+
+
+@contextlib.contextmanager
+def _opencv_silent(cv2: Any) -> Iterator[None]:
+    """OpenCV's own log silenced inside (`cv2.utils.logging`, in OpenCV 4 and 5 alike; OpenCV
+    5 has no top-level `cv2.setLogLevel`): failed camera opens are ours to report."""
+    log = cv2.utils.logging
+    level = log.getLogLevel()
+    log.setLogLevel(log.LOG_LEVEL_SILENT)
+    try:
+        yield
+    finally:
+        log.setLogLevel(level)
 
 
 class WebcamSource:
@@ -341,12 +352,8 @@ class WebcamSource:
     def open(self) -> None:
         """Open the camera (InputError listing the cameras that open, if it does not)."""
         cv2 = _cv2()
-        level = cv2.getLogLevel()
-        cv2.setLogLevel(0)  # a camera that does not open gets our one line, not OpenCV's
-        try:
+        with _opencv_silent(cv2):  # a camera that does not open gets our one line
             cap = cv2.VideoCapture(self.device)
-        finally:
-            cv2.setLogLevel(level)
         if not cap.isOpened():
             cap.release()
             found = available_cameras()
