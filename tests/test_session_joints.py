@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -31,7 +32,7 @@ from dsteleop.robot.description import description_from_record, load_description
 from dsteleop.robot.kinematics import ArmChain
 from dsteleop.robot.model import palm_tip_joints, robot_urdf_text
 from dsteleop.robot.scene import SceneGeometry
-from tests.test_lerobot import assert_replays_alike
+from tests.test_lerobot import _doctor, assert_replays_alike
 from tests.test_session_schema import full_record, lost_record
 
 CLI = [sys.executable, "-m", "dsteleop.app.cli.main"]
@@ -279,3 +280,29 @@ def test_a_live_dataset_of_the_panda_has_its_joints(tmp_path: Path) -> None:
     assert names[8:] == [f"joint.{n}" for n in joint_names_of(load_description("panda"))]
     assert state.shape[1] == 17
     np.testing.assert_array_equal(state, state_exported)
+
+
+@pytest.mark.slow
+def test_lerobot_doctor_accepts_the_pandas_joints(
+    recorded: dict[str, Path], tmp_path: Path
+) -> None:
+    """The Panda's dataset (one finger, two prismatic jaws among its joints, no camera) by
+    the checker that is not ours, in its own virtual environment (`test_lerobot._doctor`)."""
+    out = tmp_path / "ds"
+    r = dsteleop("export", str(recorded["panda"]), "--to", "lerobot", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "dsteleop-tests"
+    cache.mkdir(parents=True, exist_ok=True)
+    py = _doctor(cache).parent / "python"
+    r = subprocess.run(
+        [str(py), "-m", "lerobot_doctor.cli", str(out), "--json"],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    report = json.loads(r.stdout)
+    severities = {c["name"]: c["severity"] for c in report["checks"]}
+    assert "FAIL" not in severities.values(), report
+    # The format's checks pass (warnings, if any, are about the data: no camera, a jump of
+    # the robot policy's action at the grasp).
+    for name in ("Metadata & Format Compliance", "Feature Consistency", "Temporal Consistency",
+                 "Episode Health"):  # fmt: skip
+        assert severities[name] == "PASS", (name, report)
