@@ -128,6 +128,9 @@ class PlantStep:
         events: task events of this tick.
         outcome: the outcome, on the tick it is decided and after; None before.
         scene: world poses of the scene's frames for a viewer, or None.
+        joints: the robot's measured joint positions after the tick [rad, or m for a
+            prismatic joint], in `Robot.joint_names` order; None when the robot reports
+            none (no joints, or a record that holds none).
     """
 
     X_current: HandState
@@ -135,11 +138,14 @@ class PlantStep:
     events: tuple[TaskEvent, ...] = ()
     outcome: Outcome | None = None
     scene: ScenePoses | None = None
+    joints: NDArray[np.float64] | None = None
 
     @classmethod
-    def of(cls, X_current: HandState, step: TaskStep) -> PlantStep:
-        """The robot's achieved state and the task's report of one tick, together."""
-        return cls(X_current, step.phase, step.events, step.outcome, step.scene)
+    def of(
+        cls, X_current: HandState, step: TaskStep, joints: NDArray[np.float64] | None = None
+    ) -> PlantStep:
+        """The robot's achieved state (and joints) and the task's report of one tick."""
+        return cls(X_current, step.phase, step.events, step.outcome, step.scene, joints)
 
     @property
     def segment_changed(self) -> bool:
@@ -235,7 +241,16 @@ class Robot(Protocol):
         ...
 
     @property
-    def joint_names(self) -> tuple[str, ...]: ...
+    def joint_names(self) -> tuple[str, ...]:
+        """The joints of `RobotState.joints`, in order (the arm's, then the fingers'); ()
+        for a robot that reports none."""
+        ...
+
+    @property
+    def joint_units(self) -> tuple[str, ...]:
+        """The unit of each joint's position, in `joint_names` order: "rad" (revolute) or
+        "m" (prismatic)."""
+        ...
 
     @property
     def limits(self) -> RobotLimits: ...

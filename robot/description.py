@@ -148,6 +148,8 @@ class RobotDescription:
         max_rate_rad_s: palm angular speed limit [rad/s].
         max_finger_rate_per_s: openness rate limit [1/s].
         text: the description file's text (recorded with a session).
+        prismatic_joints: the finger joints that are prismatic in the URDF (positions in m;
+            every other joint is revolute, in rad), filled in from the URDF at loading.
     """
 
     name: str
@@ -176,6 +178,7 @@ class RobotDescription:
     grasp_depth_m: float = DEFAULT_GRASP_DEPTH_M
     spinning_friction: float = DEFAULT_SPINNING_FRICTION
     text: str = ""
+    prismatic_joints: frozenset[str] = frozenset()
 
     @property
     def finger_names(self) -> tuple[str, ...]:
@@ -256,8 +259,9 @@ def _from_text(text: str, path: Path) -> RobotDescription:
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"robot description {path}: not valid TOML ({exc})") from None
     desc = dataclasses.replace(_parse(data, path), text=text)
-    check_against_urdf(desc)
-    return desc
+    types = check_against_urdf(desc)
+    prismatic = frozenset(j.name for j in desc.finger_joints if types[j.name] == "prismatic")
+    return dataclasses.replace(desc, prismatic_joints=prismatic)
 
 
 def description_from_record(meta: dict[str, Any] | None) -> RobotDescription:
@@ -443,8 +447,11 @@ def _urdf_root(desc: RobotDescription, ref: str, field_name: str) -> ET.Element:
         raise InputError(f"robot description {desc.path}: {field_name} {p}: {exc}") from None
 
 
-def check_against_urdf(desc: RobotDescription) -> None:
+def check_against_urdf(desc: RobotDescription) -> dict[str, str]:
     """Every joint and link the description names exists in its URDF(s), with the right type.
+
+    Returns:
+        The URDF type ("revolute", "prismatic") of each joint the description names.
 
     Raises:
         InputError: naming the first that does not.
@@ -479,3 +486,5 @@ def check_against_urdf(desc: RobotDescription) -> None:
             raise fail(f"fingers: the URDF has no joint {fj.name!r}")
         if j.get("type") not in ("revolute", "prismatic"):
             raise fail(f"fingers: joint {fj.name!r} is {j.get('type')}, not revolute or prismatic")
+    named = (*desc.arm_joints, *(fj.name for fj in desc.finger_joints))
+    return {n: str(joints[n].get("type")) for n in named}

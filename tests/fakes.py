@@ -76,6 +76,7 @@ class FakeRobot:
         self.silent_after = silent_after
         self.name = "fake"
         self.joint_names: tuple[str, ...] = ()
+        self.joint_units: tuple[str, ...] = ()
         self.limits = RobotLimits((0.0, -1.0, 0.0), (1.0, 1.0, 1.0), 0.25, 1.0, 4.0)
         self.resets = 0
         self.commands: list[HandState] = []

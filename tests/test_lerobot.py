@@ -23,7 +23,7 @@ from dsteleop.app.lerobot import layout
 from dsteleop.app.lerobot.check import problems
 from dsteleop.app.lerobot.reader import read_dataset
 from dsteleop.app.replay.core import replay_session
-from dsteleop.app.session.reader import read_session
+from dsteleop.app.session.reader import Session, read_session
 from dsteleop.arbitration import Mode
 
 CLI = [sys.executable, "-m", "dsteleop.app.cli.main"]
@@ -203,14 +203,19 @@ def test_replaying_the_dataset_gives_the_sessions_metrics(
     ds = read_dataset(samples_dataset)
     for view, folder in zip(ds.sessions, SAMPLES, strict=True):
         s = read_session(folder)
-        original = s.of_episode(s.episodes[0])
-        for mode in (Mode.S, Mode.DS):
-            ta = replay_session(original, mode, robot="recorded")
-            tb = replay_session(view, mode, robot="recorded")
-            for name in ("alpha", "P_human", "P_robot", "B", "U_out"):
-                np.testing.assert_allclose(
-                    getattr(ta.step, name), getattr(tb.step, name), rtol=0, atol=1e-9
-                )
+        assert_replays_alike(s.of_episode(s.episodes[0]), view)
+
+
+def assert_replays_alike(original: Session, view: Session) -> None:
+    """Against the recorded robot, in S and DS, the dataset's view of an episode gives every
+    arbitration quantity of the original episode's replay, per tick, within 1e-9."""
+    for mode in (Mode.S, Mode.DS):
+        ta = replay_session(original, mode, robot="recorded")
+        tb = replay_session(view, mode, robot="recorded")
+        for name in ("alpha", "P_human", "P_robot", "B", "U_out"):
+            np.testing.assert_allclose(
+                getattr(ta.step, name), getattr(tb.step, name), rtol=0, atol=1e-9
+            )
 
 
 def test_episodes_counted_task_and_fps(tmp_path: Path) -> None:
@@ -296,6 +301,17 @@ def test_a_real_video_session_exports_with_its_camera(
 
     assert problems(video_dataset) == []
     info = json.loads((video_dataset / layout.INFO).read_text())
+    # The iiwa's joints end the state (7 arm joints, 8 of its hand), named, one per column.
+    session = read_session(video_session)
+    names = info["features"]["observation.state"]["names"]
+    assert len(session.joint_names) == 15 and session.joint_names[0] == "lbr_iiwa_joint_1"
+    assert names[11:] == [f"joint.{n}" for n in session.joint_names]
+    state = np.array(
+        pq.read_table(video_dataset / "data/chunk-000/file-000.parquet")
+        .column("observation.state")
+        .to_pylist()
+    )
+    assert state.shape == (info["total_frames"], 26) and np.isfinite(state).all()
     cam = info["features"][layout.CAMERA]
     assert cam["dtype"] == "video" and cam["info"]["video.codec"] in ("av1", "h264")
     assert cam["info"]["video.g"] == 2 and cam["info"]["video.crf"] == 30

@@ -3,7 +3,8 @@
 `problems(root)` lists what is wrong (empty: valid). What it checks:
 
     info.json       codebase_version v3.0, a whole fps, totals, path templates, features
-                    with dtype, shape and names
+                    with dtype, shape and names (a vector's names: one per component, none
+                    twice)
     data            every parquet file's columns are the features without the video, each of
                     the arrow type LeRobot's reader casts to (scalar for shape (1,), fixed-size
                     list of the dtype otherwise); `index` runs 0..total_frames-1 without a gap;
@@ -70,6 +71,10 @@ def problems(root: Path) -> list[str]:  # noqa: PLR0911  (each early return: not
     for k, ft in feats.items():
         if not {"dtype", "shape", "names"} <= set(ft):
             out.append(f"{L.INFO}: feature {k} lacks dtype, shape or names")
+        elif isinstance(names := ft["names"], list) and ft["dtype"] != "video":
+            n = int(ft["shape"][0])
+            if len(names) != n or len(set(names)) != n:
+                out.append(f"{L.INFO}: feature {k}: names {names} do not name its {n} values")
     for k in L.DEFAULT_FEATURES:
         if k not in feats:
             out.append(f"{L.INFO}: no {k} feature")

@@ -3,9 +3,10 @@
 Every input is checked before anything is written: the sessions read (a corrupt line or a
 folder without its metadata is one line; a last line cut short by a killed process is
 skipped with a warning, as replay does), one control rate among them equal to `--fps`, one
-set of dimensions, a camera in all of them or in none. The dataset is written into a hidden
-staging folder beside `out` and renamed into place when complete: an export that fails or
-is interrupted leaves no folder that looks like a dataset.
+set of dimensions and of joints (one robot's joint positions in every session, or none in
+any: `observation.state` has one shape), a camera in all of them or in none. The dataset
+is written into a hidden staging folder beside `out` and renamed into place when complete:
+an export that fails or is interrupted leaves no folder that looks like a dataset.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from typing import Any, Literal
 
 from dsteleop.app.lerobot import check_out_dir
 from dsteleop.app.lerobot.camera import SessionFrames
-from dsteleop.app.lerobot.writer import DatasetWriter, default_task, session_fps
+from dsteleop.app.lerobot.writer import DatasetWriter, default_task, misfit, session_fps
 from dsteleop.app.session.reader import Session, read_session, sessions_in
 from dsteleop.errors import ConfigError, InputError
 
@@ -53,7 +54,7 @@ def plan(inputs: Sequence[Path], fps: int | None, which: Which) -> Plan:
 
     Raises:
         InputError: an input is missing, not a session, corrupt, or empty; the sessions do
-            not fit one dataset; nothing to export.
+            not fit one dataset (rates, dimensions, joints, camera); nothing to export.
         ConfigError: `fps` is not the sessions' control rate.
     """
     folders: list[Path] = []
@@ -79,6 +80,10 @@ def plan(inputs: Sequence[Path], fps: int | None, which: Which) -> Plan:
             f"--fps {fps}: the sessions ran at {rate:g} Hz and each tick is one frame (its "
             f"action is the tick's command); leave --fps out or give {round(rate)}"
         )
+    for s in sessions[1:]:
+        why = misfit(s, sessions[0].dims, sessions[0].joint_names)
+        if why is not None:
+            raise InputError(why)
     cams = {s.video is not None and s.frames is not None for s in sessions}
     if len(cams) > 1:
         without = [s.folder.name for s in sessions if s.video is None or s.frames is None]
@@ -117,7 +122,10 @@ def write(
     """Write the planned episodes into `root` (no staging; `export` stages)."""
     from dsteleop.app.replay.video import frame_times
 
-    writer = DatasetWriter(root, p.fps, p.sessions[0].dims, p.camera, one_file, codec=codec)
+    first = p.sessions[0]
+    writer = DatasetWriter(
+        root, p.fps, first.dims, p.camera, one_file, codec=codec, joint_names=first.joint_names
+    )
     for s in p.sessions:
         frames = None
         if p.camera:

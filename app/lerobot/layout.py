@@ -21,9 +21,11 @@ One frame is one control tick: `timestamp` is frame_index / fps (what LeRobot's 
 expects: evenly spaced frames, and the video frame at `from_timestamp + timestamp`), the
 loop's own time of the tick rides along in `dsteleop.t_s`. `observation.state` is the
 robot's achieved palm pose and finger openness when the tick started (the previous tick's
-result, or the reset state at an episode's first tick), `action` the state the tick
-commanded (X_next). Statistics are those of LeRobot's `compute_stats` (quantiles exact here,
-where LeRobot estimates them from histograms); strings have none.
+result, or the reset state at an episode's first tick), then, for a session that recorded
+them, the robot's joint positions at the same moment; `action` the state the tick commanded
+(X_next), the palm pose and openness only. Statistics are those of LeRobot's
+`compute_stats` (quantiles exact here, where LeRobot estimates them from histograms);
+strings have none.
 
 Only pyarrow and numpy here (no pandas): `tasks.parquet` carries the pandas metadata that
 makes the task string its index when pandas reads it.
@@ -32,8 +34,8 @@ makes the task string its index when pandas reads it.
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping, Sequence
-from typing import Any
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, TypeVar
 
 import numpy as np
 import pyarrow as pa  # type: ignore[import-untyped]
@@ -44,6 +46,7 @@ from dsteleop.app.session.schema import TickRecord, encode
 from dsteleop.app.session.writer import clean
 from dsteleop.arbitration import HandState
 from dsteleop.arbitration.se3 import quat_wxyz_from_matrix
+from dsteleop.errors import InputError
 
 Array = NDArray[np.float64]
 
@@ -70,6 +73,9 @@ TICKS_PATH = "dsteleop/ticks/chunk-{chunk_index:03d}/file-{file_index:03d}.parqu
 #: The palm pose's components in `observation.state` and `action`: position [m] in the
 #: robot's base frame, orientation as a unit quaternion (x, y, z, w), then finger openness.
 POSE_NAMES = ("x", "y", "z", "qx", "qy", "qz", "qw")
+#: A joint's name in `observation.state`: this prefix and the URDF joint's name (its
+#: position in rad, or m for a prismatic joint: the session's `joint_units`).
+JOINT_PREFIX = "joint."
 #: dsteleop's per-dimension columns: feature -> the ArbitrationStep array it holds.
 PER_DIM = {
     "observation.alpha": "alpha",
@@ -89,25 +95,31 @@ def rel(template: str, index: int, video_key: str = "") -> str:
     )
 
 
-def state_names(dims: Sequence[str]) -> list[str]:
-    """The components of `observation.state` and `action`."""
+def action_names(dims: Sequence[str]) -> list[str]:
+    """The components of `action`: the palm pose, then the fingers' openness."""
     return [*POSE_NAMES, *dims[6:]]
 
 
-def features(dims: Sequence[str], camera: Mapping[str, Any] | None) -> dict[str, Any]:
-    """info.json's `features` (`camera`: the video's info block, or None without video)."""
-    S = len(state_names(dims))
-    D = len(dims)
+def state_names(dims: Sequence[str], joint_names: Sequence[str] = ()) -> list[str]:
+    """The components of `observation.state`: those of `action`, then the joints (if any)."""
+    return [*action_names(dims), *(JOINT_PREFIX + n for n in joint_names)]
 
-    def vec(n: int, names: list[str]) -> dict[str, Any]:
-        return {"dtype": "float32", "shape": [n], "names": names}
+
+def features(
+    dims: Sequence[str], camera: Mapping[str, Any] | None, joint_names: Sequence[str] = ()
+) -> dict[str, Any]:
+    """info.json's `features` (`camera`: the video's info block, or None without video;
+    `joint_names`: the robot's joints the sessions recorded, or none)."""
+
+    def vec(names: list[str]) -> dict[str, Any]:
+        return {"dtype": "float32", "shape": [len(names)], "names": names}
 
     out: dict[str, Any] = {
-        "observation.state": vec(S, state_names(dims)),
-        "action": vec(S, state_names(dims)),
+        "observation.state": vec(state_names(dims, joint_names)),
+        "action": vec(action_names(dims)),
     }
     for key in PER_DIM:
-        out[key] = vec(D, list(dims))
+        out[key] = vec(list(dims))
     out["observation.arbitrated"] = {"dtype": "int64", "shape": [1], "names": None}
     if camera is not None:
         out[CAMERA] = {
@@ -133,6 +145,39 @@ def state_vectors(states: Sequence[HandState]) -> NDArray[np.float32]:
     return np.concatenate([p, q[:, 1:], q[:, :1], g], axis=1).astype(np.float32)
 
 
+T = TypeVar("T")
+
+
+def at_start(
+    records: Sequence[TickRecord], after: Callable[[TickRecord], T], reset: T | None
+) -> list[T]:
+    """A value of the robot when each tick started: the previous tick's `after`; at the
+    first tick `reset` (the value at the episode's reset), or its own `after` without one."""
+    first = reset if reset is not None else after(records[0])
+    return [first, *(after(r) for r in records[:-1])]
+
+
+def joint_vectors(records: Sequence[TickRecord], n_joints: int) -> NDArray[np.float32]:
+    """The robot's joint positions when each tick started (`at_start`), one row per tick.
+
+    Raises:
+        InputError: a tick holds no joint positions, or another number of them.
+    """
+
+    def joints(r: TickRecord) -> Array | None:
+        return r.plant.joints
+
+    rows: list[Array | None] = at_start(records, joints, records[0].joints_reset)
+    for k, q in enumerate(rows):
+        if q is None or q.shape != (n_joints,):
+            got = "none" if q is None else str(q.size)
+            raise InputError(
+                f"tick {records[0].k + k}: {got} joint positions where the session names "
+                f"{n_joints} joints"
+            )
+    return np.array(rows, dtype=np.float32).reshape(len(records), n_joints)
+
+
 def frame_columns(
     records: Sequence[TickRecord],
     fps: float,
@@ -140,20 +185,23 @@ def frame_columns(
     index0: int,
     task_index: int,
     camera_t_s: Sequence[float] | None,
+    n_joints: int = 0,
 ) -> dict[str, Any]:
     """The data columns of one episode's ticks (module docstring): numpy arrays, strings as
-    a list. `camera_t_s`: the capture time of the video frame of each tick, or None."""
+    a list. `camera_t_s`: the capture time of the video frame of each tick, or None;
+    `n_joints`: the joints the session names (their positions end `observation.state`).
+
+    Raises:
+        InputError: the ticks do not hold `n_joints` joint positions each.
+    """
     n = len(records)
     dims = records[0].dims
     D = len(dims)
-    before: list[HandState] = []
-    for k, r in enumerate(records):
-        if k > 0:
-            before.append(records[k - 1].X_current)
-        else:
-            before.append(r.X_reset if r.X_reset is not None else r.X_current)
+    state = state_vectors(at_start(records, lambda r: r.X_current, records[0].X_reset))
+    if n_joints:
+        state = np.concatenate([state, joint_vectors(records, n_joints)], axis=1)
     cols: dict[str, Any] = {
-        "observation.state": state_vectors(before),
+        "observation.state": state,
         "action": state_vectors([r.X_next for r in records]),
     }
     arbitrated = np.array([r.step is not None for r in records])

@@ -118,7 +118,13 @@ class LiveDataset:
         view = view.of_episode(view.episode)  # type: ignore[arg-type]
         if self._writer is None:
             self._writer = DatasetWriter(
-                self.root, self.fps, view.dims, self.camera, one_file=False, codec=self.codec
+                self.root,
+                self.fps,
+                view.dims,
+                self.camera,
+                one_file=False,
+                codec=self.codec,
+                joint_names=view.joint_names,
             )
         frames = self._frames(folder, ticks[-1].t_s) if self.camera else None
         try:

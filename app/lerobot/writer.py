@@ -46,6 +46,27 @@ def session_fps(session: Session) -> float:
     return float(session.meta.get("loop", {}).get("rate_hz", 30.0))
 
 
+def _joints_text(names: Sequence[str]) -> str:
+    return f"{len(names)} joints, {names[0]}..{names[-1]}" if names else "no joints"
+
+
+def misfit(view: Session, dims: Sequence[str], joint_names: Sequence[str]) -> str | None:
+    """Why the session `view` does not fit a dataset of these dimensions and joints (one
+    line), or None when it fits."""
+    if tuple(view.dims) != tuple(dims):
+        return (
+            f"{view.name}: dimensions {','.join(view.dims)} differ from the dataset's "
+            f"({','.join(dims)}); export such sessions into separate datasets"
+        )
+    if view.joint_names != tuple(joint_names):
+        return (
+            f"{view.name}: its robot's joint positions ({_joints_text(view.joint_names)}) "
+            f"differ from the dataset's ({_joints_text(joint_names)}); export sessions of "
+            "different robots, or with and without joint positions, into separate datasets"
+        )
+    return None
+
+
 def _atomic_path(path: Path) -> Path:
     """A temporary name beside `path` that no reader of the layout matches."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -62,6 +83,8 @@ class DatasetWriter:
         root: the dataset folder (created).
         fps: frames per second, the sessions' control rate.
         dims: the dimension names of every session.
+        joint_names: the robot's joints every session recorded (their positions end
+            `observation.state`), or () for sessions without joint positions.
         camera: the episodes come with camera frames (all of them, or none).
         one_file: export (everything in file-000, written at `close`) or live (a file per
             episode, written as it comes).
@@ -78,8 +101,10 @@ class DatasetWriter:
         one_file: bool,
         robot_type: str = "dsteleop_kitchen_pybullet",
         codec: str = "av1",
+        joint_names: Sequence[str] = (),
     ) -> None:
         self.codec = codec
+        self.joint_names = tuple(joint_names)
         self.root = Path(root)
         self.fps = fps
         self.dims = tuple(dims)
@@ -97,7 +122,7 @@ class DatasetWriter:
         self._video_t = 0.0
 
     def _features(self) -> dict[str, Any]:
-        return L.features(self.dims, self._camera_info if self.camera else None)
+        return L.features(self.dims, self._camera_info if self.camera else None, self.joint_names)
 
     def _open_encoder(self, file_index: int, width: int, height: int) -> CameraEncoder:
         final = self.root / L.rel(L.VIDEO_PATH, file_index, L.CAMERA)
@@ -117,16 +142,15 @@ class DatasetWriter:
             its episode index in the dataset.
 
         Raises:
-            InputError: the episode does not fit the dataset (dimensions, camera, rate).
+            InputError: the episode does not fit the dataset (dimensions, joints, camera, rate),
+                or a tick lacks its joint positions.
         """
         records = view.records
         if not records:
             raise InputError(f"{view.name}: an episode without ticks")
-        if tuple(view.dims) != self.dims:
-            raise InputError(
-                f"{view.name}: dimensions {','.join(view.dims)} differ from the dataset's "
-                f"({','.join(self.dims)}); export such sessions into separate datasets"
-            )
+        why = misfit(view, self.dims, self.joint_names)
+        if why is not None:
+            raise InputError(why)
         if self.camera and frames is None:
             raise InputError(
                 f"{view.name}: no camera video, but the dataset has a camera; export sessions "
@@ -151,7 +175,18 @@ class DatasetWriter:
                 enc.write(frame)
                 if k in wanted:
                     samples.append(rgb(frame))
-        cols = L.frame_columns(records, self.fps, e, self.frames, self.tasks.index(task), camera_t)
+        try:
+            cols = L.frame_columns(
+                records,
+                self.fps,
+                e,
+                self.frames,
+                self.tasks.index(task),
+                camera_t,
+                len(self.joint_names),
+            )
+        except InputError as exc:
+            raise InputError(f"{view.name}: {exc}") from None
         feats = self._features()
         stats = {
             k: L.feature_stats(cols[k])

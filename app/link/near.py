@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 from dsteleop.app.link import ros
 from dsteleop.app.link.config import LinkConfig
 from dsteleop.app.link.session import Received, Subscription, Topic, open_session
-from dsteleop.app.plants.described import joint_names_of
+from dsteleop.app.plants.described import joint_names_of, joint_units_of
 from dsteleop.app.ports import ROBOT_LOST, ROBOT_STALE_S, RobotLimits, RobotState
 from dsteleop.arbitration import HandState
 from dsteleop.errors import InputError
@@ -50,6 +50,7 @@ class ZenohRobot:
         assert self.config.limits is not None  # for_robot filled it in
         self._limits = self.config.limits
         self._joint_names = joint_names_of(self.desc)
+        self._joint_units = joint_units_of(self.desc)
         config = self.config
         d, t = config.domain_id, config.topics
         self._session = open_session(config.near, config.connect_timeout_s, "near end")
@@ -84,6 +85,11 @@ class ZenohRobot:
     def joint_names(self) -> tuple[str, ...]:
         """The description's joints (`joint_names_of`): the arm's, then the fingers'."""
         return self._joint_names
+
+    @property
+    def joint_units(self) -> tuple[str, ...]:
+        """Each joint's unit (`joint_units_of`): "rad", or "m" for a prismatic joint."""
+        return self._joint_units
 
     @property
     def limits(self) -> RobotLimits:

@@ -80,6 +80,11 @@ log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
 
 
+def _joints_of(rs: RobotState) -> Array | None:
+    """The joints a robot state reports, for the record; None from a robot without joints."""
+    return rs.joints if rs.joints.size else None
+
+
 class TeleopLoop:
     """The fixed-rate loop (module docstring). One thread calls `tick`/`run`.
 
@@ -160,10 +165,12 @@ class TeleopLoop:
         self._robot_lost = ""  # why the robot cannot be driven ("" while it can)
         #: Ticks on which the robot was lost (its state missing or stale), since the start.
         self.robot_lost_ticks = 0
-        self.state = tick.start(self._reset_world(None), self.arbiter, history)
+        self._joints: Array | None = None  # the robot's last measured joints (None: none)
+        reset = self._reset_world(None)
+        self.state = tick.start(reset.X, self.arbiter, history)
         self.utensil = str(task.describe().get("utensil", ""))
         self.tick_index = 0
-        self._reset_state: HandState | None = self.state.X_current  # in the next record
+        self._reset_state: RobotState | None = reset  # in the next record
 
     # --- state -----------------------------------------------------------------------
 
@@ -188,18 +195,20 @@ class TeleopLoop:
             self.state, filter=self.arbiter.initial_state(len(self.dims))
         )
 
-    def _reset_world(self, utensil: str | None) -> HandState:
+    def _reset_world(self, utensil: str | None) -> RobotState:
         """The task set up again, then the robot home: its state there."""
         self.task.reset(utensil)
         rs = self.robot.reset(self.clock.now())
         self._robot_lost = ""
         self._last_step = TaskStep(Phase.PICK)
-        return rs.X
+        self._joints = _joints_of(rs)
+        return rs
 
     def _reset_task(self, utensil: str | None) -> None:
-        self.state = tick.start(self._reset_world(utensil), self.arbiter, self.state.history)
+        reset = self._reset_world(utensil)
+        self.state = tick.start(reset.X, self.arbiter, self.state.history)
         self.utensil = str(self.task.describe().get("utensil", utensil or ""))
-        self._reset_state = self.state.X_current
+        self._reset_state = reset
         self.tick_index = 0
         self.events_log = []
         self._t_outcome = None
@@ -274,6 +283,9 @@ class TeleopLoop:
             "mapping": self.hand.mapping_config(),
             "plant": self.task.describe(),
             "robot": self.robot.describe(),
+            # The joints of each tick's `joints` and `joints_reset`, once: names and units.
+            "joint_names": list(self.robot.joint_names),
+            "joint_units": list(self.robot.joint_units),
             "operator_history": self.history.to_dict(),
             # Where it persists: the file and the hash of its content now, or None (empty,
             # kept nowhere: the default).
@@ -394,7 +406,8 @@ class TeleopLoop:
             X_human=self.state.X_human_last,
             notes=notes,
             timing=timing,
-            X_reset=reset_state,
+            X_reset=None if reset_state is None else reset_state.X,
+            joints_reset=None if reset_state is None else _joints_of(reset_state),
         )
         if self._recorder is not None:
             record = self._record(self._recorder, record)
@@ -432,13 +445,18 @@ class TeleopLoop:
                 )
             self._robot_lost = ROBOT_LOST
             return PlantStep(
-                self.state.X_current, self._last_step.phase, (), self._last_step.outcome
+                self.state.X_current,
+                self._last_step.phase,
+                (),
+                self._last_step.outcome,
+                joints=self._joints,
             )
         if self._robot_lost:
             log.info("%s: robot state again", self.robot.name)
         self._robot_lost = ""
         self._last_step = self.task.update(rs)
-        return PlantStep.of(rs.X, self._last_step)
+        self._joints = _joints_of(rs)
+        return PlantStep.of(rs.X, self._last_step, self._joints)
 
     def _history_term(self) -> Array | None:
         key = (len(self.history), self.config.arbitration)

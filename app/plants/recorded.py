@@ -2,7 +2,9 @@
 `ports.Task` (`recorded_pair`).
 
 Each tick returns what the robot and the task reported when the session was recorded (the
-achieved state, phase, task events, outcome), whatever the loop commands. A replay against
+achieved state and joint positions, phase, task events, outcome), whatever the loop
+commands; a session recorded without joints (schema 3 and older, or a robot that reports
+none) plays back a robot without joints. A replay against
 the recorded robot is therefore open loop: no physics runs, so the loop and the
 arbitration see exactly the states they saw live, on any machine. In the recorded mode it
 reproduces the recorded arbitration (what the sample sessions' check relies on); in another
@@ -17,6 +19,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from dsteleop.app.plants.described import limits_of
 from dsteleop.app.ports import RobotLimits, RobotState, TaskStep
@@ -56,20 +59,38 @@ class RecordedRobot:
         self.finger_names = session.dims[6:]
         self._meta = dict(session.meta.get("robot") or {"kind": "recorded"})
         self.name = str(self._meta.get("name", "recorded"))
-        self.joint_names: tuple[str, ...] = ()  # the records hold no joints
+        self.joint_names = session.joint_names
+        self.joint_units = session.joint_units
         self.limits: RobotLimits = limits_of(description_from_record(self._meta))
 
+    def _joints(self, q: NDArray[np.float64] | None) -> NDArray[np.float64]:
+        """A record's joints in `joint_names` order (NaN where the record holds none).
+
+        Raises:
+            InputError: the record holds another number of joints than the session names.
+        """
+        n = len(self.joint_names)
+        if q is None:
+            return np.full(n, np.nan)
+        if q.shape != (n,):
+            raise InputError(
+                f"{self._c.folder}: tick {self._c.k} holds {q.size} joint positions for the "
+                f"{n} joints of the session's joint_names"
+            )
+        return q
+
     def reset(self, now_s: float) -> RobotState:
-        X = self._c.record().X_reset
-        if X is None:
+        r = self._c.record()
+        if r.X_reset is None:
             raise InputError(f"tick {self._c.k}: a reset the recording does not hold")
-        return RobotState(X, np.zeros(0), now_s)
+        return RobotState(r.X_reset, self._joints(r.joints_reset), now_s)
 
     def apply(self, X_cmd: HandState, seq: int, now_s: float) -> None:
         pass
 
     def state(self, now_s: float) -> RobotState | None:
-        return RobotState(self._c.record().plant.X_current, np.zeros(0), now_s)
+        p = self._c.record().plant
+        return RobotState(p.X_current, self._joints(p.joints), now_s)
 
     def describe(self) -> dict[str, Any]:
         return self._meta

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from dsteleop.app.plants.described import joint_names_of, limits_of
+from dsteleop.app.plants.described import joint_names_of, joint_units_of, limits_of
 from dsteleop.app.ports import RobotLimits, RobotState
 from dsteleop.arbitration import HandState
 from dsteleop.robot.description import RobotDescription
@@ -43,6 +43,7 @@ class SimulatedRobot:
         self._utensil = utensil
         self._stamp_s = 0.0
         self._joint_names = joint_names_of(self.desc)
+        self._joint_units = joint_units_of(self.desc)
         self._limits = limits_of(self.desc)
 
     @classmethod
@@ -68,6 +69,10 @@ class SimulatedRobot:
     @property
     def joint_names(self) -> tuple[str, ...]:
         return self._joint_names
+
+    @property
+    def joint_units(self) -> tuple[str, ...]:
+        return self._joint_units
 
     @property
     def limits(self) -> RobotLimits:

@@ -86,6 +86,16 @@ class Session:
         return tuple(self.meta.get("dims", ()))
 
     @property
+    def joint_names(self) -> tuple[str, ...]:
+        """The robot's joints of the ticks' `joints` (schema 4); () when it recorded none."""
+        return tuple(str(n) for n in self.meta.get("joint_names") or ())
+
+    @property
+    def joint_units(self) -> tuple[str, ...]:
+        """Each joint's unit ("rad" or "m"), in `joint_names` order."""
+        return tuple(str(u) for u in self.meta.get("joint_units") or ())
+
+    @property
     def mode(self) -> Mode:
         return Mode.parse(str(self.meta.get("mode", "DS")))
 

@@ -7,14 +7,18 @@ back into the same type, so every consumer handles one shape. It holds the arbit
 shape), so a new field of either reaches the recording and the view without an edit here
 beyond its encoding.
 
-JSON form (schema `dsteleop.session/3`; `recordings/README.md` lists the keys): states are
+JSON form (schema `dsteleop.session/4`; `recordings/README.md` lists the keys): states are
 flat lists, position (3), rotation matrix row-major (9), openness (F); per-dimension arrays
-are lists of 6 + F values; task events are "kind" or "kind:detail". Inputs of a replay (the
-hand, the robot's side, the times) keep full precision; outputs (the arbitration, the
-command) keep 10 significant digits; landmarks 4 decimals. Schema 1 (before the typed
-record) is read too: its notes and task events were one list, told apart here by kind.
-Schema 2 differs from 3 only in the metadata (3 lists the session's episodes,
-`session.episodes`) and in the status of ticks after the outcome (`finished`; 2 said `lost`).
+are lists of 6 + F values; task events are "kind" or "kind:detail"; the robot's joint
+positions (`joints`, and `joints_reset` beside `X_reset`) a list in the order of the
+metadata's `joint_names` [rad, or m for a prismatic joint: `joint_units`]. Inputs of a
+replay (the hand, the robot's side, the times) keep full precision; outputs (the
+arbitration, the command) keep 10 significant digits; landmarks 4 decimals. Older schemas
+are read too. Schema 3 differs from 4 only in the joints (3 recorded none: its records read
+back with `joints` None). Schema 2 differs from 3 only in the metadata (3 lists the
+session's episodes, `session.episodes`) and in the status of ticks after the outcome
+(`finished`; 2 said `lost`). Schema 1 (before the typed record): its notes and task events
+were one list, told apart here by kind.
 """
 
 from __future__ import annotations
@@ -36,8 +40,8 @@ from dsteleop.tracking.types import HandSample
 
 Array = NDArray[np.float64]
 
-SCHEMA = "dsteleop.session/3"
-READABLE = ("dsteleop.session/1", "dsteleop.session/2", SCHEMA)
+SCHEMA = "dsteleop.session/4"
+READABLE = ("dsteleop.session/1", "dsteleop.session/2", "dsteleop.session/3", SCHEMA)
 
 
 class Status(str, enum.Enum):
@@ -88,6 +92,8 @@ class TickRecord:
         timing: loop timing [ms]: jitter, tick duration, latencies from capture.
         X_reset: the state the robot reset to at the start of this tick (the first tick and
             after a task reset), else None; a replay against the recorded robot starts there.
+        joints_reset: the robot's joint positions at that reset [rad, or m for a prismatic
+            joint] (`Robot.joint_names` order), or None (no reset, or no joints reported).
         recording: the recording in progress, or None (for the view; not written).
     """
 
@@ -107,6 +113,7 @@ class TickRecord:
     notes: tuple[str, ...] = ()
     timing: Mapping[str, float] = field(default_factory=dict)
     X_reset: HandState | None = None
+    joints_reset: Array | None = None
     recording: RecordingStatus | None = None
 
     @property
@@ -144,6 +151,21 @@ def unpack(v: list[float] | None) -> HandState | None:
     if a.ndim != 1 or a.size < 12:
         raise ValueError(f"a state needs at least 12 numbers, got {a.size}")
     return HandState(a[0:3], a[3:12].reshape(3, 3), a[12:])
+
+
+def pack_joints(q: Array) -> list[float]:
+    """Joint positions as a list (full precision: an input of a replay)."""
+    return np.asarray(q, dtype=np.float64).tolist()
+
+
+def unpack_joints(v: list[float | None] | None) -> Array | None:
+    """Joint positions from their list (null, i.e. not measured, as NaN), or None."""
+    if v is None:
+        return None
+    a = np.asarray(v, dtype=np.float64)
+    if a.ndim != 1:
+        raise ValueError(f"joint positions must be a flat list, got shape {a.shape}")
+    return a
 
 
 def encode_event(e: TaskEvent) -> str:
@@ -235,6 +257,8 @@ def encode(r: TickRecord) -> dict[str, Any]:
         # The robot's side at full precision: a replay against the recorded robot reads it
         # back as its input (`plants.recorded.RecordedRobot`).
         "X_current": pack(r.plant.X_current),
+        # Only from a robot that reports joints (schema 3's records hold none).
+        **({} if r.plant.joints is None else {"joints": pack_joints(r.plant.joints)}),
         "X_goal": pack(r.X_goal),
         "X_next": _sig(pack(r.X_next)),
         "U_cmd": _sig(r.U_cmd),
@@ -243,6 +267,8 @@ def encode(r: TickRecord) -> dict[str, Any]:
     }
     if r.X_reset is not None:
         out["X_reset"] = pack(r.X_reset)
+        if r.joints_reset is not None:
+            out["joints_reset"] = pack_joints(r.joints_reset)
     return out
 
 
@@ -294,7 +320,7 @@ def _decode_step(arb: dict[str, Any] | None, X_next: HandState) -> ArbitrationSt
 
 
 def decode(d: dict[str, Any], dims: tuple[str, ...]) -> TickRecord:
-    """A tick record from its JSON object (schema 1 or 2).
+    """A tick record from its JSON object (any readable schema).
 
     Raises:
         InputError: a key is missing or a value is malformed (the message names it).
@@ -313,6 +339,7 @@ def decode(d: dict[str, Any], dims: tuple[str, ...]) -> TickRecord:
             phase=Phase(d.get("phase", "pick")),
             events=events,
             outcome=decode_outcome(d.get("outcome"), events),
+            joints=unpack_joints(d.get("joints")),
         )
         return TickRecord(
             k=int(d["k"]),
@@ -331,6 +358,7 @@ def decode(d: dict[str, Any], dims: tuple[str, ...]) -> TickRecord:
             notes=notes,
             timing={k: float(v) for k, v in (d.get("timing") or {}).items() if v is not None},
             X_reset=unpack(d.get("X_reset")),
+            joints_reset=unpack_joints(d.get("joints_reset")),
         )
     except (KeyError, TypeError, ValueError, AssertionError) as exc:
         raise InputError(f"malformed tick record ({type(exc).__name__}: {exc})") from None
