@@ -468,8 +468,8 @@ class ClosedLoopOperator:
         moved = diff(seen, r.seen_at_plan.take(idx))
         lagging = np.zeros(idx.size, dtype=bool)
         # (A persistent misjudgement does not hide motion: the look-to-look noise does.)
-        noise = (self.world.lateral_sigma_m, pr.angle_noise_rad, pr.openness_noise)
-        for g, sd in zip((TRANS, ROT, FING), noise, strict=True):
+        look_sd = (self.world.lateral_sigma_m, pr.angle_noise_rad, pr.openness_noise)
+        for g, sd in zip((TRANS, ROT, FING), look_sd, strict=True):
             a, m = asked[:, g], moved[:, g]
             if a.shape[1] == 0:
                 continue
