@@ -842,6 +842,12 @@ class _ClosedHands(_Hands):
 _CHECK_TICKS = 16
 
 
+def _planar_into(out: Array, X: HandState) -> None:
+    """Write the states X (n,) as planar poses into out (n, 3): x, y, heading."""
+    out[:, :2] = X.position[:, :2]
+    out[:, 2] = heading_of(X.rotation)
+
+
 def _rows_of(a: Array) -> NDArray[np.void]:
     """(..., J, w) float64 with C-contiguous rows -> (..., J) of one opaque w * 8-byte item
     per row: a row is then copied as one item (a fancy-indexed copy of rows ~3x faster)."""
@@ -862,8 +868,7 @@ class _Tape:
     values or zero).
 
     Attributes:
-        robot, hand: (T, J, 3) x, y and (at the end) the heading per state.
-        robot_cs, hand_cs: (T, J, 2) the heading's cos and sin per state.
+        robot, hand: (T, J, 3) x, y and heading per state.
         U_human, U_out: (T - 1, J, 6) the actions of each tick.
         acted: (T - 1, J) the tick belongs to the row's trial.
     """
@@ -871,12 +876,11 @@ class _Tape:
     def __init__(self, T: int, J: int) -> None:
         self.shape = (T, J)
         self.robot, self.hand = np.empty((T, J, 3)), np.empty((T, J, 3))
-        self.robot_cs, self.hand_cs = np.empty((T, J, 2)), np.empty((T, J, 2))
         self.U_human, self.U_out = np.zeros((T - 1, J, 6)), np.zeros((T - 1, J, 6))
         self.acted = np.zeros((T - 1, J), dtype=bool)
         B = _CHECK_TICKS
         # The block: tick k's states (at k + 1) and actions (at k) of the current rows.
-        self._block = tuple(np.empty((B, J, w)) for w in (3, 3, 2, 2, 6, 6))
+        self._block = tuple(np.empty((B, J, w)) for w in (3, 3, 6, 6))
         self._from = 0  # the block's first tick
         self._ticks = 0  # ticks in the block
 
@@ -892,9 +896,9 @@ class _Tape:
         actions. Ticks come in order; `flush` at least every `_CHECK_TICKS` ticks."""
         i = k - self._from
         n = U_h.shape[0]
-        rp, hp, rc, hc, uh, uo = self._block
-        rp[i, :n], rc[i, :n] = X.position, X.rotation[:, :2, 0]
-        hp[i, :n], hc[i, :n] = H.position, H.rotation[:, :2, 0]
+        robot, hand, uh, uo = self._block
+        _planar_into(robot[i, :n], X)
+        _planar_into(hand[i, :n], H)
         uh[i, :n], uo[i, :n] = U_h, U_out
         self._ticks = i + 1
 
@@ -904,9 +908,11 @@ class _Tape:
         states = slice(k0 + 1, k0 + 1 + B)
         actions = slice(k0, k0 + B)
         targets = (
-            self.robot[states], self.hand[states], self.robot_cs[states],
-            self.hand_cs[states], self.U_human[actions], self.U_out[actions],
-        )  # fmt: skip
+            self.robot[states],
+            self.hand[states],
+            self.U_human[actions],
+            self.U_out[actions],
+        )
         for full, block in zip(targets, self._block, strict=True):
             if n == self.shape[1]:
                 full[...] = block[:B]
@@ -961,9 +967,8 @@ def _simulate(
     X, Xp, X0r = X0, X0, X0
     H0 = hands.start()
     tape = (_Tape(T, J) if tape is None else tape).start(T, J)
-    xy, hxy, cs, hcs = tape.robot, tape.hand, tape.robot_cs, tape.hand_cs
-    xy[0], cs[0] = X.position, X.rotation[:, :2, 0]
-    hxy[0], hcs[0] = H0.position, H0.rotation[:, :2, 0]
+    _planar_into(tape.robot[0], X)
+    _planar_into(tape.hand[0], H0)
     hands.observe(0.0, X)
     reported = 0
     for k in range(T - 1):
@@ -1007,16 +1012,13 @@ def _simulate(
     T = int(lengths.max())  # the longest trial (closed loop: often far under the limit)
     past = np.arange(T)[:, None] >= lengths[None, :]
 
-    def poses(p: Array, c: Array) -> Array:
+    def poses(p: Array) -> Array:
         out = p[:T]
-        # Past a row's length the buffers hold whatever memory held (overwritten with NaN
-        # just below), which may be NaN: no warning for those entries.
-        with np.errstate(invalid="ignore"):
-            out[..., 2] = np.arctan2(c[:T, :, 1], c[:T, :, 0])
+        # Past a row's length the buffers hold whatever memory held: NaN there.
         np.copyto(out, np.nan, where=past[..., None])
         return out
 
-    return poses(xy, cs), lengths, poses(hxy, hcs)
+    return poses(tape.robot), lengths, poses(tape.hand)
 
 
 def _time_major(hands: HandState) -> HandState:
