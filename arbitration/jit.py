@@ -85,6 +85,16 @@ def as_input(
     function: M' = 1 when it has no batch of its own (one row shared by every row) and
     `shared`, else M = prod(batch). C-contiguous and writable, so that numba compiles one
     version of each function."""
+    if (
+        type(x) is np.ndarray
+        and len(batch) == 1
+        and x.ndim == 1 + vector_axes
+        and x.shape[0] == batch[0]
+        and x.dtype == np.float64
+        and x.flags.c_contiguous
+        and x.flags.writeable
+    ):
+        return x  # already (M, *tail) as compiled functions take it (the common case, fast)
     a = np.asarray(x, dtype=np.float64)
     lead = a.shape[: a.ndim - vector_axes]
     tail = a.shape[a.ndim - vector_axes :]

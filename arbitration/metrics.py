@@ -520,7 +520,9 @@ def trajectory_histogram(
     """
     pts = np.asarray(points, dtype=np.float64)
     pts = pts.reshape(-1, pts.shape[-1])
-    pts = pts[np.isfinite(pts).all(-1)]
+    finite = np.isfinite(pts).all(-1)
+    if not finite.all():
+        pts = pts[finite]
     rng = np.asarray(ranges, dtype=np.float64)
     counts, _ = np.histogramdd(pts, bins=bins, range=[tuple(r) for r in rng])
     return np.asarray(counts, dtype=np.int64)

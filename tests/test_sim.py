@@ -494,3 +494,49 @@ def test_summary_reports_the_papers_metrics_and_labels_the_others() -> None:
     mc = s["tests"]["S_vs_DS"]["success_mcnemar"]
     assert mc["first_only"] == int(np.sum(S.success & ~DS.success))
     assert mc["second_only"] == int(np.sum(~S.success & DS.success))
+
+
+def test_tape_scatters_each_block_of_ticks_to_its_rows() -> None:
+    # The rows shrink as trials end (every _CHECK_TICKS ticks); each block of buffered ticks
+    # must land on the rows it was of, and the ticks that belong to a trial follow from the
+    # trials' lengths.
+    B = sc._CHECK_TICKS
+    T, J = 3 * B + 4, 7
+    epochs = [np.arange(J), np.array([0, 2, 3, 6]), np.array([2, 6])]
+    rng = np.random.default_rng(3)
+    want_robot, want_hand = np.full((T, J, 3), np.nan), np.full((T, J, 3), np.nan)
+    want_uh, want_uo = np.full((T - 1, J, 6), np.nan), np.full((T - 1, J, 6), np.nan)
+    tape = sc._Tape(T, J).start(T, J)
+    for k in range(T - 1):
+        if k % B == 0 and k > 0:
+            tape.flush(epochs[k // B - 1])
+        rows = epochs[min(k // B, len(epochs) - 1)]
+        n = rows.size
+        X = sc.planar_state(*rng.uniform(-3.0, 3.0, (3, n)))
+        H = sc.planar_state(*rng.uniform(-3.0, 3.0, (3, n)))
+        U_h, U_o = rng.standard_normal((n, 6)), rng.standard_normal((n, 6))
+        tape.put(k, X, H, U_h, U_o)
+        for want, S in ((want_robot, X), (want_hand, H)):
+            want[k + 1, rows, :2] = S.position[:, :2]
+            want[k + 1, rows, 2] = sc.heading_of(S.rotation)
+        want_uh[k, rows], want_uo[k, rows] = U_h, U_o
+    tape.flush(epochs[-1])
+    for got, want in (
+        (tape.robot, want_robot), (tape.hand, want_hand), (tape.U_human, want_uh),
+        (tape.U_out, want_uo),
+    ):  # fmt: skip
+        written = ~np.isnan(want)
+        assert np.array_equal(got[written], want[written])
+    lengths = np.array([5, T, 30, 12, 1, 9, T])
+    tape.close(lengths)
+    assert np.array_equal(tape.acted, np.arange(1, T)[:, None] < lengths[None, :])
+
+
+def test_study_processes_keep_the_memory_they_free() -> None:
+    import platform
+
+    from dsteleop.app.study.run import keep_freed_memory
+
+    if platform.libc_ver()[0] != "glibc":
+        pytest.skip("mallopt is glibc's")
+    assert keep_freed_memory() is True

@@ -6,6 +6,8 @@ numbers do not depend on the number of workers (beyond the last bits).
 
 from __future__ import annotations
 
+import ctypes
+import functools
 import itertools
 import math
 import multiprocessing as mp
@@ -30,6 +32,29 @@ def workers_for(requested: int, trajectories: int) -> int:
     if requested == 0:
         requested = min(os.cpu_count() or 1, 4)
     return max(1, min(requested, math.ceil(trajectories / 100)))
+
+
+#: glibc's mallopt parameters: the trim threshold and the mmap threshold.
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
+
+
+@functools.lru_cache(maxsize=1)
+def keep_freed_memory() -> bool:
+    """Have this process (and the workers it forks) keep the memory it frees for reuse:
+    glibc's allocator then serves arrays of up to 32 MB (its largest mmap threshold) from
+    its heap and never gives freed heap memory back to the system. By default it maps an
+    array of a few MB afresh and unmaps it when freed, so the next one faults its pages
+    in again; a study chunk allocates such arrays (the metrics' temporaries, the operators'
+    ring of observations) thousands of times, and on a VM a page fault is slow (first
+    touch ran at ~0.4 GB/s here against ~27 GB/s for a copy). Changes no number, only
+    where memory comes from. Returns False where the C library is not glibc (nothing
+    changed)."""
+    try:
+        mallopt = ctypes.CDLL(None).mallopt  # the C library the interpreter is linked with
+    except (OSError, AttributeError, TypeError):
+        return False
+    ok = mallopt(_M_MMAP_THRESHOLD, 32 * 1024 * 1024) == 1
+    return bool(mallopt(_M_TRIM_THRESHOLD, 1 << 30) == 1 and ok)
 
 
 _QUEUE: Any = None
@@ -76,6 +101,7 @@ def simulate_all(
     in this process as soon as study i is complete, while the workers go on with the others
     (put a small study whose result is wanted early, e.g. to draw its figure, first).
     """
+    keep_freed_memory()  # before the workers are forked: they inherit it
     if workers <= 1:
         out = []
         for i, cfg in enumerate(cfgs):
