@@ -6,7 +6,7 @@ and a camera video beside it as `--record-video` writes one (the session's own c
 H.264 writer, a frame at each tick's time, `frames.jsonl`): the frames of a real hand video
 from the test data, looping, when it is given (`--data DIR`), else a synthetic moving
 pattern of the webcam's usual 640 x 480. Then `export --to lerobot` of the session is timed,
-with each camera codec in turn (AV1, LeRobot's default; H.264), alternately, `REPEATS`
+with each camera codec in turn (AV1, LeRobot's own default; H.264, ours), alternately, `REPEATS`
 times each; the figure is the recorded time over the wall time of the whole export (reading,
 decoding, re-encoding, the tables, the statistics), `speed_x_realtime`, its median; the
 recorded time is the episodes' ticks (about 55 of the 60 s: the ticks between an outcome and

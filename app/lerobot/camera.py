@@ -3,10 +3,11 @@
 Each tick gets the newest frame captured at or before the tick's start (the image the
 operator's hand was tracked from by then; the first frame for ticks before any), read from
 the session's `video.mp4` in order with the capture times of `frames.jsonl`. The frames are
-re-encoded into the dataset's video with the format's own codec settings (LeRobot's
-`VideoEncoderConfig` defaults: AV1 by SVT-AV1, yuv420p, a keyframe every 2 frames, CRF 30,
-preset 12; or, with `--codec h264`, H.264 with the same keyframe interval, quality and pixel
-format at x264's fastest preset), one frame per tick stamped
+re-encoded into the dataset's video with one of the format's codecs: by default H.264 (x264
+at its fastest preset, yuv420p, a keyframe every 2 frames, CRF 30: LeRobot's settings with
+its `h264` codec), or with `--codec av1` LeRobot's own default (SVT-AV1, the same keyframe
+interval, pixel format and CRF, preset 12; `DEFAULT_CODEC` says why not by default), one
+frame per tick stamped
 frame / fps, so LeRobot's reader finds frame k of an episode at `from_timestamp + k / fps`.
 Decoded frames go to the encoder as they are (already yuv420p): no colour conversion, except
 for the frames sampled for the statistics.
@@ -34,6 +35,13 @@ log = logging.getLogger(__name__)
 SVTAV1 = {"vcodec": "libsvtav1", "pix_fmt": "yuv420p", "g": 2, "crf": 30, "preset": 12}
 #: Its settings for H.264 (a codec LeRobot also reads), x264's fastest preset.
 H264 = {"vcodec": "libx264", "pix_fmt": "yuv420p", "g": 2, "crf": 30, "preset": "ultrafast"}
+
+
+#: The camera's codec unless asked otherwise: H.264. SVT-AV1 at LeRobot's settings encodes
+#: ~140 frames/s of 852x480 on two cores (its fastest preset), under 5x real time at 30 Hz
+#: before anything else is done, and it takes both cores from a live loop (`--record-lerobot`);
+#: x264 ultrafast encodes ~900 frames/s. LeRobot reads both; `--codec av1` gives its own.
+DEFAULT_CODEC = "h264"
 
 
 def frames_for_ticks(frame_t_s: Sequence[float], tick_t_s: Sequence[float]) -> list[int]:
@@ -96,11 +104,13 @@ class CameraEncoder(EncodedVideo):
         path: the .mp4 to write.
         fps: the dataset's frame rate [Hz].
         width, height: the frames' size (others are scaled to it).
-        codec: "av1" (LeRobot's default; H.264 where this FFmpeg has no SVT-AV1) or "h264"
-            (several times faster to encode; LeRobot reads both).
+        codec: "h264" (the default, `DEFAULT_CODEC`) or "av1" (LeRobot's own default; H.264
+            where this FFmpeg has no SVT-AV1); LeRobot reads both.
     """
 
-    def __init__(self, path: Path, fps: int, width: int, height: int, codec: str = "av1") -> None:
+    def __init__(
+        self, path: Path, fps: int, width: int, height: int, codec: str = DEFAULT_CODEC
+    ) -> None:
         os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1's banner and notices: errors only
         import av
 

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from dsteleop.app.lerobot import check_out_dir
-from dsteleop.app.lerobot.camera import SessionFrames
+from dsteleop.app.lerobot.camera import DEFAULT_CODEC, SessionFrames
 from dsteleop.app.lerobot.writer import DatasetWriter, default_task, misfit, session_fps
 from dsteleop.app.session.reader import Session, read_session, sessions_in
 from dsteleop.errors import ConfigError, InputError
@@ -117,7 +117,7 @@ def write(
     which: Which,
     one_file: bool = True,
     advance: Callable[[int], None] | None = None,
-    codec: str = "av1",
+    codec: str = DEFAULT_CODEC,
 ) -> DatasetWriter:
     """Write the planned episodes into `root` (no staging; `export` stages)."""
     from dsteleop.app.replay.video import frame_times
@@ -151,7 +151,7 @@ def export(
     which: Which = "all",
     advance: Callable[[int], None] | None = None,
     checked: Plan | None = None,
-    codec: str = "av1",
+    codec: str = DEFAULT_CODEC,
 ) -> dict[str, Any]:
     """Export sessions into a new dataset at `out` (module docstring); a summary.
 

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from dsteleop.app.lerobot import check_out_dir
-from dsteleop.app.lerobot.camera import SessionFrames
+from dsteleop.app.lerobot.camera import DEFAULT_CODEC, SessionFrames
 from dsteleop.app.lerobot.writer import DatasetWriter, default_task
 from dsteleop.app.session.episodes import Episode
 from dsteleop.app.session.reader import Session
@@ -50,14 +50,19 @@ class LiveDataset:
         fps: the loop's rate [Hz] (a whole number).
         camera: the sessions record the camera (--record-video).
         task: every episode's task string (None: from its utensil).
-        codec: the camera's codec ("av1" or "h264").
+        codec: the camera's codec, "h264" (the default) or "av1".
 
     Raises:
         InputError: `root` holds something or cannot be written.
     """
 
     def __init__(
-        self, root: Path, fps: int, camera: bool, task: str | None = None, codec: str = "av1"
+        self,
+        root: Path,
+        fps: int,
+        camera: bool,
+        task: str | None = None,
+        codec: str = DEFAULT_CODEC,
     ) -> None:
         check_out_dir(Path(root))
         self.root = Path(root)

@@ -29,7 +29,13 @@ import pyarrow as pa  # type: ignore[import-untyped]
 
 from dsteleop import __version__
 from dsteleop.app.lerobot import layout as L  # noqa: N812  (the layout, named once)
-from dsteleop.app.lerobot.camera import CameraEncoder, SessionFrames, frames_for_ticks, rgb
+from dsteleop.app.lerobot.camera import (
+    DEFAULT_CODEC,
+    CameraEncoder,
+    SessionFrames,
+    frames_for_ticks,
+    rgb,
+)
 from dsteleop.app.session.reader import Session
 from dsteleop.app.session.schema import SCHEMA
 from dsteleop.app.session.writer import clean, write_json_atomic
@@ -89,7 +95,7 @@ class DatasetWriter:
         one_file: export (everything in file-000, written at `close`) or live (a file per
             episode, written as it comes).
         robot_type: info.json's `robot_type`.
-        codec: the camera's codec, "av1" or "h264" (`camera.CameraEncoder`).
+        codec: the camera's codec, "h264" (the default) or "av1" (`camera.CameraEncoder`).
     """
 
     def __init__(
@@ -100,7 +106,7 @@ class DatasetWriter:
         camera: bool,
         one_file: bool,
         robot_type: str = "dsteleop_kitchen_pybullet",
-        codec: str = "av1",
+        codec: str = DEFAULT_CODEC,
         joint_names: Sequence[str] = (),
     ) -> None:
         self.codec = codec
