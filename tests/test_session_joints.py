@@ -208,6 +208,7 @@ def test_the_export_puts_the_joints_into_the_state_and_round_trips(
     assert names[7 + F :] == [f"joint.{n}" for n in s.joint_names]
     assert feats["observation.state"]["shape"] == [7 + F + J] and state.shape[1] == 7 + F + J
     assert feats["action"]["names"] == names[: 7 + F] and action.shape[1] == 7 + F
+    assert info["robot_type"] == robot
     # The joints when each tick started: at the reset, then the previous tick's.
     q0 = s.records[0].joints_reset
     assert q0 is not None
@@ -246,6 +247,14 @@ def test_sessions_without_one_robots_joints_are_refused_in_one_line(
     (other / META).write_text(json.dumps(meta))
     r = dsteleop("export", str(iiwa), str(other), "--to", "lerobot", "--out", str(out))
     one_line_refusal(r, "different robots")
+    # Another robot's name behind the same dimensions and joints (info.json's robot_type).
+    renamed = tmp_path / "renamed"
+    shutil.copytree(iiwa, renamed)
+    meta = json.loads((renamed / META).read_text())
+    meta["robot"]["name"] = "iiwa_copy"
+    (renamed / META).write_text(json.dumps(meta))
+    r = dsteleop("export", str(iiwa), str(renamed), "--to", "lerobot", "--out", str(out))
+    one_line_refusal(r, "its robot (iiwa_copy) differs")
     # Different robots (the Panda's one finger against the iiwa's four).
     r = dsteleop("export", str(iiwa), str(recorded["panda"]), "--to", "lerobot", "--out", str(out))
     one_line_refusal(r, "dimensions")

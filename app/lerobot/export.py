@@ -81,7 +81,7 @@ def plan(inputs: Sequence[Path], fps: int | None, which: Which) -> Plan:
             f"action is the tick's command); leave --fps out or give {round(rate)}"
         )
     for s in sessions[1:]:
-        why = misfit(s, sessions[0].dims, sessions[0].joint_names)
+        why = misfit(s, sessions[0].dims, sessions[0].joint_names, sessions[0].robot_name)
         if why is not None:
             raise InputError(why)
     cams = {s.video is not None and s.frames is not None for s in sessions}
@@ -124,7 +124,14 @@ def write(
 
     first = p.sessions[0]
     writer = DatasetWriter(
-        root, p.fps, first.dims, p.camera, one_file, codec=codec, joint_names=first.joint_names
+        root,
+        p.fps,
+        first.dims,
+        p.camera,
+        one_file,
+        robot_type=first.robot_name,
+        codec=codec,
+        joint_names=first.joint_names,
     )
     for s in p.sessions:
         frames = None

@@ -128,6 +128,7 @@ class LiveDataset:
                 view.dims,
                 self.camera,
                 one_file=False,
+                robot_type=view.robot_name,
                 codec=self.codec,
                 joint_names=view.joint_names,
             )

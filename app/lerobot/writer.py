@@ -56,9 +56,11 @@ def _joints_text(names: Sequence[str]) -> str:
     return f"{len(names)} joints, {names[0]}..{names[-1]}" if names else "no joints"
 
 
-def misfit(view: Session, dims: Sequence[str], joint_names: Sequence[str]) -> str | None:
-    """Why the session `view` does not fit a dataset of these dimensions and joints (one
-    line), or None when it fits."""
+def misfit(
+    view: Session, dims: Sequence[str], joint_names: Sequence[str], robot: str
+) -> str | None:
+    """Why the session `view` does not fit a dataset of these dimensions, joints and robot
+    (one line), or None when it fits."""
     if tuple(view.dims) != tuple(dims):
         return (
             f"{view.name}: dimensions {','.join(view.dims)} differ from the dataset's "
@@ -69,6 +71,11 @@ def misfit(view: Session, dims: Sequence[str], joint_names: Sequence[str]) -> st
             f"{view.name}: its robot's joint positions ({_joints_text(view.joint_names)}) "
             f"differ from the dataset's ({_joints_text(joint_names)}); export sessions of "
             "different robots, or with and without joint positions, into separate datasets"
+        )
+    if view.robot_name != robot:
+        return (
+            f"{view.name}: its robot ({view.robot_name}) differs from the dataset's ({robot}); "
+            "export sessions of different robots into separate datasets"
         )
     return None
 
@@ -94,7 +101,7 @@ class DatasetWriter:
         camera: the episodes come with camera frames (all of them, or none).
         one_file: export (everything in file-000, written at `close`) or live (a file per
             episode, written as it comes).
-        robot_type: info.json's `robot_type`.
+        robot_type: info.json's `robot_type`: the robot's description name (`Session.robot_name`).
         codec: the camera's codec, "h264" (the default) or "av1" (`camera.CameraEncoder`).
     """
 
@@ -105,7 +112,7 @@ class DatasetWriter:
         dims: Sequence[str],
         camera: bool,
         one_file: bool,
-        robot_type: str = "dsteleop_kitchen_pybullet",
+        robot_type: str,
         codec: str = DEFAULT_CODEC,
         joint_names: Sequence[str] = (),
     ) -> None:
@@ -154,7 +161,7 @@ class DatasetWriter:
         records = view.records
         if not records:
             raise InputError(f"{view.name}: an episode without ticks")
-        why = misfit(view, self.dims, self.joint_names)
+        why = misfit(view, self.dims, self.joint_names, self.robot_type)
         if why is not None:
             raise InputError(why)
         if self.camera and frames is None:

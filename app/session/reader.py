@@ -17,6 +17,7 @@ from dsteleop.app.session.video import FRAMES, VIDEO
 from dsteleop.app.session.writer import META, TICKS
 from dsteleop.arbitration import Mode, OperatorHistory
 from dsteleop.errors import InputError
+from dsteleop.robot.description import DEFAULT_ROBOT
 
 log = logging.getLogger(__name__)
 
@@ -84,6 +85,14 @@ class Session:
     @property
     def dims(self) -> tuple[str, ...]:
         return tuple(self.meta.get("dims", ()))
+
+    @property
+    def robot_name(self) -> str:
+        """The recorded robot's description name ("iiwa", "panda", ...); the iiwa for a
+        session recorded before robots were descriptions."""
+        robot = self.meta.get("robot")
+        name = robot.get("name") if isinstance(robot, dict) else None
+        return str(name or DEFAULT_ROBOT)
 
     @property
     def joint_names(self) -> tuple[str, ...]:
