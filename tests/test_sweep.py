@@ -4,6 +4,7 @@ McNemar's test of each cell against scipy, bad grids."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -252,3 +253,42 @@ def test_the_sweep_module_and_a_cell_leave_ray_unloaded() -> None:
         [sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True
     )
     assert out.stdout.split() == ["['DS',", "'S']", "False"]
+
+
+@pytest.mark.slow
+def test_sweep_on_a_cluster_the_user_started_runs_and_resumes(tmp_path: Path) -> None:
+    """`--address HOST:PORT`: the cells go to a cluster started apart (`ray start --head`,
+    on loopback), and `--resume` there computes nothing again."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    ray = Path(sys.executable).parent / "ray"
+    env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0"}
+    head = [
+        str(ray), "start", "--head", "--node-ip-address", "127.0.0.1", "--port", str(port),
+        "--num-cpus", "2", "--include-dashboard", "false", "--disable-usage-stats",
+    ]  # fmt: skip
+    started = subprocess.run(head, capture_output=True, text=True, env=env, timeout=180)
+    try:
+        assert started.returncode == 0, started.stderr[-2000:]
+        out = tmp_path / "sweep"
+        args = [
+            sys.executable, "-m", "dsteleop.app.cli.main", "sim", "--no-progress", "--out",
+            str(out), "--trajectories", "6", "--seed", "4", "--modes", "S,DS,manual",
+            "--address", f"127.0.0.1:{port}", "--sweep", "goal=0,0.04", "delay=0", "depth=0",
+        ]  # fmt: skip
+        first = subprocess.run(args, capture_output=True, text=True, env=env, timeout=600)
+        assert first.returncode == 0, first.stderr[-2000:]
+        a = json.loads(first.stdout)
+        assert a["cluster"]["cluster"] == f"127.0.0.1:{port}" and a["cluster"]["nodes"] == 1
+        assert (a["cells"], a["computed"], a["resumed"], a["failed"]) == (2, 2, 0, 0)
+        again = subprocess.run(
+            [*args, "--resume"], capture_output=True, text=True, env=env, timeout=600
+        )
+        assert again.returncode == 0, again.stderr[-2000:]
+        b = json.loads(again.stdout)
+        assert (b["computed"], b["resumed"]) == (0, 2) and b["counts"] == a["counts"]
+    finally:
+        subprocess.run([str(ray), "stop", "--force"], capture_output=True, env=env, timeout=120)
