@@ -241,3 +241,91 @@ def test_limits_clamp_keeps_commands_inside_the_box_and_speeds():
         RobotLimits((0.0, 0.0, 1.0), (1.0, 1.0, 1.0), 0.5, 1.0, 2.0)
     with pytest.raises(ConfigError, match="max_speed_m_s"):
         RobotLimits((0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 0.0, 1.0, 2.0)
+
+
+# rmw_zenoh's design document (docs/design.md, "Graph Cache", ros2/rmw_zenoh at 99a6a2bd):
+# the liveliness tokens of demo_nodes_cpp's listener node and talker's publisher, verbatim.
+LISTENER_NODE_TOKEN = "@ros2_lv/2/aac3178e146ba6f1fc6e6a4085e77f21/0/0/NN/%/%/listener"
+TALKER_PUB_TOKEN = (
+    "@ros2_lv/2/8b20917502ee955ac4476e0266340d5c/0/10/MP/%/%/talker/%chatter/"
+    "std_msgs::msg::dds_::String_/"
+    "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18/::,7:,:,:,,"
+)
+LISTENER_SUB_TOKEN = (
+    "@ros2_lv/2/aac3178e146ba6f1fc6e6a4085e77f21/0/10/MS/%/%/listener/%chatter/"
+    "std_msgs::msg::dds_::String_/"
+    "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18/::,10:,:,:,,"
+)
+
+
+def test_liveliness_keys_are_rmw_zenohs_design_examples():
+    zl, zt = "aac3178e146ba6f1fc6e6a4085e77f21", "8b20917502ee955ac4476e0266340d5c"
+    listener, talker = ros.RosNode("listener"), ros.RosNode("talker")
+    assert ros.liveliness_key(2, zl, listener, 0, 0, ros.NODE) == LISTENER_NODE_TOKEN
+    got = ros.liveliness_key(
+        2, zt, talker, 0, 10, ros.PUBLISHER, "/chatter", "std_msgs/msg/String", ros.QoS(depth=7)
+    )
+    assert got == TALKER_PUB_TOKEN
+    # field by field, in the order of liveliness_utils.cpp's KeyexprIndex
+    fields = got.split("/")
+    assert fields == TALKER_PUB_TOKEN.split("/")
+    assert len(fields) == 13
+    admin, dom, zid, nid, eid, kind, enclave, ns, name, topic, typ, hsh, qos = fields
+    assert (admin, dom, zid, nid, eid, kind) == ("@ros2_lv", "2", zt, "0", "10", "MP")
+    assert (enclave, ns, name, topic) == ("%", "%", "talker", "%chatter")
+    assert (typ, hsh, qos) == ("std_msgs::msg::dds_::String_", STRING_KEY[-71:], "::,7:,:,:,,")
+    # a topic without its leading "/" is the same fully qualified name
+    assert (
+        ros.liveliness_key(
+            2,
+            zl,
+            listener,
+            0,
+            10,
+            ros.SUBSCRIPTION,
+            "chatter",
+            "std_msgs/msg/String",
+            ros.QoS(depth=10),
+        )
+        == LISTENER_SUB_TOKEN
+    )
+
+
+def test_liveliness_key_of_a_link_topic_and_its_qos():
+    node = ros.RosNode("dsteleop", namespace="/lab/arm1")
+    key = ros.liveliness_key(
+        0, "0123abcd", node, 0, 1, ros.PUBLISHER, "/dsteleop/palm_pose_command", ros.POSE_STAMPED
+    )
+    assert key == (
+        "@ros2_lv/0/0123abcd/0/1/MP/%/%lab%arm1/dsteleop/%dsteleop%palm_pose_command/"
+        "geometry_msgs::msg::dds_::PoseStamped_/"
+        + ros.type_hash(ros.POSE_STAMPED)
+        + "/2::,1:,:,:,,"
+    )
+    # rmw_zenoh's compact QoS: reliability, durability, history,depth, deadline s,ns,
+    # lifespan s,ns, liveliness,lease s,ns; empty where the value is rmw_zenoh's default
+    # (reliable=1, volatile=2, keep_last=1, depth 42, durations infinite, automatic=1)
+    assert ros.qos_key(ros.QoS()) == "::,:,:,:,,"
+    assert ros.qos_key(ros.LINK_QOS) == "2::,1:,:,:,,"
+    assert (
+        ros.qos_key(
+            ros.QoS(
+                reliability=ros.RELIABLE,
+                durability=ros.TRANSIENT_LOCAL,
+                history=ros.KEEP_ALL,
+                depth=5,
+                deadline=(1, 500),
+                lifespan=(2, 0),
+                liveliness=3,
+                lease=(0, 250_000_000),
+            )
+        )
+        == ":1:2,5:1,500:2,0:3,0,250000000"
+    )
+    assert ros.mangle("/a/b_c/") == "%a%b_c%"
+    with pytest.raises(ValueError):
+        ros.liveliness_key(0, "z", node, 0, 1, ros.PUBLISHER)  # a publisher needs its topic
+    with pytest.raises(ValueError):
+        ros.liveliness_key(0, "z", node, 0, 0, ros.NODE, "/t", ros.POSE_STAMPED)
+    with pytest.raises(ValueError):
+        ros.liveliness_key(0, "z", node, 0, 0, "XX")

@@ -36,10 +36,14 @@ import numpy as np
 
 from dsteleop.app.link import ros
 from dsteleop.app.link.config import LinkConfig
-from dsteleop.app.link.session import Received, Subscription, Topic, open_session
+from dsteleop.app.link.session import Node, Received, Subscription, Topic, open_session
 from dsteleop.errors import InputError
 
 log = logging.getLogger(__name__)
+
+
+#: The far end's node in a ROS 2 graph: /dsteleop_robot_sim (`ros2 node list`).
+FAR_NODE = ros.RosNode("dsteleop_robot_sim")
 
 
 @dataclasses.dataclass
@@ -88,6 +92,8 @@ class FarEnd:
         self.applied = 0
         self.halted = True
         self.halt_reason = "waiting for commands"
+        #: The far end as a ROS 2 node in the graph (its liveliness tokens, docs/link.md).
+        self.node = Node(self._session, d, FAR_NODE)
         self._pose_in: Subscription[ros.PoseMsg] = Subscription(
             self._session,
             d,
@@ -95,6 +101,7 @@ class FarEnd:
             ros.POSE_STAMPED,
             ros.decode_pose,
             lambda r: self._offer(self._pose_slot, r),
+            self.node,
         )
         self._fingers_in: Subscription[ros.JointsMsg] = Subscription(
             self._session,
@@ -103,16 +110,19 @@ class FarEnd:
             ros.JOINT_STATE,
             ros.decode_joints,
             lambda r: self._offer(self._fingers_slot, r),
+            self.node,
         )
-        self._pose_out = Topic(self._session, d, t.state_pose, ros.POSE_STAMPED)
-        self._joints_out = Topic(self._session, d, t.state_joints, ros.JOINT_STATE)
-        self._fingers_out = Topic(self._session, d, t.state_fingers, ros.JOINT_STATE)
-        self._endpoints: tuple[Topic | Subscription[Any], ...] = (
+        n = self.node
+        self._pose_out = Topic(self._session, d, t.state_pose, ros.POSE_STAMPED, n)
+        self._joints_out = Topic(self._session, d, t.state_joints, ros.JOINT_STATE, n)
+        self._fingers_out = Topic(self._session, d, t.state_fingers, ros.JOINT_STATE, n)
+        self._endpoints: tuple[Topic | Subscription[Any] | Node, ...] = (
             self._pose_in,
             self._fingers_in,
             self._pose_out,
             self._joints_out,
             self._fingers_out,
+            self.node,  # last: its entities' tokens go first
         )
         self._seq = 0
         self._last_cmd_mono: float | None = None

@@ -25,12 +25,15 @@ from numpy.typing import NDArray
 
 from dsteleop.app.link import ros
 from dsteleop.app.link.config import LinkConfig
-from dsteleop.app.link.session import Received, Subscription, Topic, open_session
+from dsteleop.app.link.session import Node, Received, Subscription, Topic, open_session
 from dsteleop.app.plants.described import joint_names_of, joint_units_of
 from dsteleop.app.ports import ROBOT_LOST, ROBOT_STALE_S, RobotLimits, RobotState
 from dsteleop.arbitration import HandState
 from dsteleop.errors import InputError
 from dsteleop.robot.scene import SceneGeometry
+
+#: The near end's node in a ROS 2 graph: /dsteleop (`ros2 node list`).
+NEAR_NODE = ros.RosNode("dsteleop")
 
 
 class ZenohRobot:
@@ -54,16 +57,20 @@ class ZenohRobot:
         config = self.config
         d, t = config.domain_id, config.topics
         self._session = open_session(config.near, config.connect_timeout_s, "near end")
-        self._pose_out = Topic(self._session, d, t.command_pose, ros.POSE_STAMPED)
-        self._fingers_out = Topic(self._session, d, t.command_fingers, ros.JOINT_STATE)
+        s = self._session
+        #: The near end as a ROS 2 node in the graph (its liveliness tokens, docs/link.md).
+        self.node = Node(s, d, NEAR_NODE)
+        n = self.node
+        self._pose_out = Topic(s, d, t.command_pose, ros.POSE_STAMPED, n)
+        self._fingers_out = Topic(s, d, t.command_fingers, ros.JOINT_STATE, n)
         self._pose_in: Subscription[ros.PoseMsg] = Subscription(
-            self._session, d, t.state_pose, ros.POSE_STAMPED, ros.decode_pose
+            s, d, t.state_pose, ros.POSE_STAMPED, ros.decode_pose, node=n
         )
         self._joints_in: Subscription[ros.JointsMsg] = Subscription(
-            self._session, d, t.state_joints, ros.JOINT_STATE, ros.decode_joints
+            s, d, t.state_joints, ros.JOINT_STATE, ros.decode_joints, node=n
         )
         self._fingers_in: Subscription[ros.JointsMsg] = Subscription(
-            self._session, d, t.state_fingers, ros.JOINT_STATE, ros.decode_joints
+            s, d, t.state_fingers, ros.JOINT_STATE, ros.decode_joints, node=n
         )
         self._X_sent: HandState | None = None
         self._t_sent_s: float | None = None
@@ -220,6 +227,7 @@ class ZenohRobot:
             self._pose_in,
             self._joints_in,
             self._fingers_in,
+            self.node,
         ):
             c.close()
         self._session.close()

@@ -12,6 +12,16 @@ Everything here is pure (bytes in, bytes out; no session, no clock):
                      since the UNIX epoch), 0x10 (the GID's length), the 16-byte publisher GID
 
 The type hash is REP-2016's RIHS01 of the type description, computed by rosbags.
+
+Graph presence (`liveliness_key`): rmw_zenoh declares one Zenoh liveliness token per node,
+publisher and subscription, whose key expression describes the entity:
+
+    @ros2_lv/<domain_id>/<session zid>/<node id>/<entity id>/<NN|MP|MS>/<enclave>/<namespace>/
+    <node name>[/<topic>/<DDS type name>/<type hash>/<qos>]
+
+with every name mangled ("/" -> "%") and the QoS in rmw_zenoh's compact form (`qos_key`).
+Followed: ros2/rmw_zenoh, rmw_zenoh_cpp/src/detail/liveliness_utils.cpp at 3411fdec and
+docs/design.md ("Graph Cache") at 99a6a2bd.
 """
 
 from __future__ import annotations
@@ -73,6 +83,144 @@ def key_expr(domain_id: int, topic: str, ros_type: str) -> str:
 def topic_wildcard(domain_id: int, topic: str) -> str:
     """Every type on a topic: a subscriber on it sees a wrong-typed publisher too."""
     return f"{domain_id}/{topic.strip('/')}/*/*"
+
+
+#: The admin space of rmw_zenoh's liveliness tokens.
+LIVELINESS_PREFIX = "@ros2_lv"
+#: Entity kinds in a liveliness key (rmw_zenoh also has SS and SC: services, unused here).
+NODE, PUBLISHER, SUBSCRIPTION = "NN", "MP", "MS"
+
+# rmw/types.h enumerators, as rmw_zenoh writes them (std::to_string of the enum).
+RELIABLE, BEST_EFFORT = 1, 2
+TRANSIENT_LOCAL, VOLATILE = 1, 2
+KEEP_LAST, KEEP_ALL = 1, 2
+LIVELINESS_AUTOMATIC = 1
+#: RMW_DURATION_INFINITE (rmw/time.h): (sec, nsec) = (9223372036, 854775807), INT64_MAX ns.
+DURATION_INFINITE = (9223372036, 854775807)
+
+
+@dataclass(frozen=True)
+class QoS:
+    """A ROS 2 QoS profile as rmw_zenoh encodes it in a liveliness key (rmw/types.h values).
+
+    The defaults are rmw_zenoh's own default profile (rmw_zenoh_cpp/src/detail/qos.cpp):
+    reliable, volatile, keep last 42, infinite deadline, lifespan and lease, automatic
+    liveliness; a field equal to its default is written as nothing.
+
+    Attributes:
+        reliability: RELIABLE or BEST_EFFORT.
+        durability: VOLATILE or TRANSIENT_LOCAL.
+        history: KEEP_LAST or KEEP_ALL.
+        depth: the history depth [messages].
+        deadline: (sec, nsec).
+        lifespan: (sec, nsec).
+        liveliness: LIVELINESS_AUTOMATIC (1) or another rmw liveliness policy.
+        lease: the liveliness lease duration (sec, nsec).
+    """
+
+    reliability: int = RELIABLE
+    durability: int = VOLATILE
+    history: int = KEEP_LAST
+    depth: int = 42
+    deadline: tuple[int, int] = DURATION_INFINITE
+    lifespan: tuple[int, int] = DURATION_INFINITE
+    liveliness: int = LIVELINESS_AUTOMATIC
+    lease: tuple[int, int] = DURATION_INFINITE
+
+
+#: The link's QoS, declared for each of its publishers and subscriptions: best effort (its
+#: publishers drop rather than block under congestion), volatile, keep last 1 (a
+#: subscription keeps only the newest message).
+LINK_QOS = QoS(reliability=BEST_EFFORT, depth=1)
+
+
+def qos_key(qos: QoS) -> str:
+    """rmw_zenoh's compact QoS chunk (`qos_to_keyexpr`): ":"-separated reliability,
+    durability, "history,depth", "deadline s,ns", "lifespan s,ns" and "liveliness,lease s,ns",
+    each field left empty where it equals rmw_zenoh's default (`QoS()`).
+    E.g. the default profile is "::,:,:,:,,"; `LINK_QOS` is "2::,1:,:,:,,".
+    """
+    d = QoS()
+
+    def f(v: int, default: int) -> str:
+        return "" if v == default else str(v)
+
+    return ":".join(
+        (
+            f(qos.reliability, d.reliability),
+            f(qos.durability, d.durability),
+            f"{f(qos.history, d.history)},{f(qos.depth, d.depth)}",
+            f"{f(qos.deadline[0], d.deadline[0])},{f(qos.deadline[1], d.deadline[1])}",
+            f"{f(qos.lifespan[0], d.lifespan[0])},{f(qos.lifespan[1], d.lifespan[1])}",
+            f"{f(qos.liveliness, d.liveliness)},{f(qos.lease[0], d.lease[0])},"
+            f"{f(qos.lease[1], d.lease[1])}",
+        )
+    )
+
+
+def mangle(name: str) -> str:
+    """A ROS name as one key chunk: every "/" becomes "%" (rmw_zenoh's `mangle_name`)."""
+    return name.replace("/", "%")
+
+
+@dataclass(frozen=True)
+class RosNode:
+    """A ROS 2 node's identity in the graph.
+
+    Attributes:
+        name: the node name (no "/").
+        namespace: the node's namespace, "/" for none.
+        enclave: the SROS enclave, "/" for none.
+    """
+
+    name: str
+    namespace: str = "/"
+    enclave: str = "/"
+
+
+def liveliness_key(
+    domain_id: int,
+    zid: str,
+    node: RosNode,
+    node_id: int,
+    entity_id: int,
+    kind: str,
+    topic: str | None = None,
+    ros_type: str | None = None,
+    qos: QoS = LINK_QOS,
+) -> str:
+    """The key expression of an entity's liveliness token (module docstring).
+
+    Args:
+        domain_id: ROS_DOMAIN_ID.
+        zid: the Zenoh session id as Zenoh prints it (`str(session.zid())`).
+        node: the node the entity belongs to.
+        node_id: the node's id within its session (rmw_zenoh: a context-wide counter).
+        entity_id: the entity's id (for the node itself: `node_id`).
+        kind: NODE, PUBLISHER or SUBSCRIPTION.
+        topic: the fully qualified topic name (publishers and subscriptions only).
+        ros_type: e.g. "geometry_msgs/msg/PoseStamped" (with `topic`).
+        qos: the entity's QoS (with `topic`).
+    """
+    if kind not in (NODE, PUBLISHER, SUBSCRIPTION):
+        raise ValueError(f"liveliness_key: unknown entity kind {kind!r}")
+    if (kind == NODE) != (topic is None) or (topic is None) != (ros_type is None):
+        raise ValueError("liveliness_key: a node has no topic; a publisher or subscription has one")
+    chunks = [
+        LIVELINESS_PREFIX,
+        str(domain_id),
+        zid,
+        str(node_id),
+        str(entity_id),
+        kind,
+        mangle(node.enclave),
+        mangle(node.namespace),
+        mangle(node.name),
+    ]
+    if topic is not None and ros_type is not None:
+        fq = topic if topic.startswith("/") else "/" + topic
+        chunks += [mangle(fq), mangle(dds_type_name(ros_type)), type_hash(ros_type), qos_key(qos)]
+    return "/".join(chunks)
 
 
 def type_of_key(key: str) -> tuple[str, str]:

@@ -6,6 +6,11 @@ only the newest message of a topic (a one-slot mailbox, like the loop's: a late 
 the newest state, never a queue of old ones) and records the first wrong message it sees
 (another type on the topic, bytes that are not the type, a missing attachment) as an error
 the reader raises.
+
+A `Node` makes an end visible in a ROS 2 graph on rmw_zenoh: it declares the node's liveliness
+token, and a `Topic` or `Subscription` given the node declares its own (keys from
+`ros.liveliness_key`); each token is undeclared when its owner closes, and all of them vanish
+with the session.
 """
 
 from __future__ import annotations
@@ -64,6 +69,40 @@ def open_session(ends: Endpoints, connect_timeout_s: float, who: str) -> Any:
         ) from None
 
 
+class Node:
+    """A ROS 2 node on a session: its liveliness token, and ids for its entities.
+
+    As rmw_zenoh does, the node and its entities take ids from one counter per session: the
+    node is 0 (its token carries 0 twice), its publishers and subscriptions 1, 2, ...
+
+    Args:
+        session: an open Zenoh session.
+        domain_id: ROS_DOMAIN_ID.
+        node: the node's name, namespace and enclave.
+    """
+
+    def __init__(self, session: Any, domain_id: int, node: ros.RosNode) -> None:
+        self.session = session
+        self.domain_id = domain_id
+        self.node = node
+        self.zid = str(session.zid())
+        self.node_id = 0
+        self._next_id = 1
+        self.key = ros.liveliness_key(domain_id, self.zid, node, 0, 0, ros.NODE)
+        self._token = session.liveliness().declare_token(self.key)
+
+    def declare(self, kind: str, topic: str, ros_type: str) -> tuple[str, Any]:
+        """Declare a publisher's or subscription's token: (its key, the token)."""
+        eid, self._next_id = self._next_id, self._next_id + 1
+        key = ros.liveliness_key(
+            self.domain_id, self.zid, self.node, self.node_id, eid, kind, topic, ros_type
+        )
+        return key, self.session.liveliness().declare_token(key)
+
+    def close(self) -> None:
+        self._token.undeclare()
+
+
 class Topic:
     """Publishes one ROS 2 type on one topic, each message with rmw_zenoh's attachment.
 
@@ -72,9 +111,18 @@ class Topic:
         domain_id: ROS_DOMAIN_ID.
         topic: the topic name.
         ros_type: e.g. `ros.POSE_STAMPED`.
+        node: the node it belongs to, which declares its liveliness token (None: no token,
+            invisible to ROS 2's graph, as for a test's probe).
     """
 
-    def __init__(self, session: Any, domain_id: int, topic: str, ros_type: str) -> None:
+    def __init__(
+        self,
+        session: Any,
+        domain_id: int,
+        topic: str,
+        ros_type: str,
+        node: Node | None = None,
+    ) -> None:
         import zenoh
 
         self.key = ros.key_expr(domain_id, topic, ros_type)
@@ -86,6 +134,11 @@ class Topic:
             priority=zenoh.Priority.REAL_TIME,
             express=True,
         )
+        #: The key of its liveliness token (None without a node).
+        self.token_key: str | None = None
+        self._token: Any = None
+        if node is not None:
+            self.token_key, self._token = node.declare(ros.PUBLISHER, topic, ros_type)
 
     def put(self, payload: bytes, seq: int, stamp_ns: int) -> None:
         """Send one CDR payload with its sequence number and source stamp [ns, UNIX]."""
@@ -93,6 +146,8 @@ class Topic:
         self._pub.put(payload, attachment=att)
 
     def close(self) -> None:
+        if self._token is not None:
+            self._token.undeclare()
         self._pub.undeclare()
 
 
@@ -126,6 +181,7 @@ class Subscription(Generic[T]):
         ros_type: the expected type.
         decode: CDR bytes -> message (raises `InputError` on bytes that are not one).
         on_message: called with each good message, in Zenoh's thread (must not block).
+        node: the node it belongs to, which declares its liveliness token (None: no token).
     """
 
     def __init__(
@@ -136,6 +192,7 @@ class Subscription(Generic[T]):
         ros_type: str,
         decode: Callable[[bytes], T],
         on_message: Callable[[Received[T]], None] | None = None,
+        node: Node | None = None,
     ) -> None:
         self.topic = topic
         self.ros_type = ros_type
@@ -150,6 +207,11 @@ class Subscription(Generic[T]):
         self._sub = session.declare_subscriber(
             ros.topic_wildcard(domain_id, topic), self._on_sample
         )
+        #: The key of its liveliness token (None without a node).
+        self.token_key: str | None = None
+        self._token: Any = None
+        if node is not None:
+            self.token_key, self._token = node.declare(ros.SUBSCRIPTION, topic, ros_type)
 
     def _on_sample(self, sample: Any) -> None:
         t_mono, t_ns = time.monotonic(), time.time_ns()
@@ -192,4 +254,6 @@ class Subscription(Generic[T]):
             return self._newest
 
     def close(self) -> None:
+        if self._token is not None:
+            self._token.undeclare()
         self._sub.undeclare()
