@@ -413,3 +413,130 @@ def test_serve_builds_the_linked_robot_with_its_twin_and_shows_it_lost(tmp_path)
         built.close()
         if far.proc.poll() is None:
             far.kill()
+
+
+def _tokens(session: Any, domain_id: int = 0) -> set[str]:
+    """The keys of every liveliness token under rmw_zenoh's admin space, as a ROS 2 context
+    on rmw_zenoh asks for them when it starts (`liveliness get`)."""
+    replies = session.liveliness().get(f"{ros.LIVELINESS_PREFIX}/{domain_id}/**", timeout=2.0)
+    return {str(r.ok.key_expr) for r in replies if r.ok is not None}
+
+
+def _wait_tokens(session: Any, until: Any, timeout_s: float = 10.0) -> set[str]:
+    t_end = time.monotonic() + timeout_s
+    keys = _tokens(session)
+    while not until(keys) and time.monotonic() < t_end:
+        time.sleep(0.1)
+        keys = _tokens(session)
+    return keys
+
+
+def _expected(
+    zid: str,
+    node: ros.RosNode,
+    pubs: list[tuple[str, str]],
+    subs: list[tuple[str, str]],
+    order: list[str],
+) -> set[str]:
+    """The tokens of one end: its node (ids 0/0), then its entities numbered 1, 2, ... in
+    the order they are created (`order` lists the topics in that order)."""
+    kinds = {t: (ros.PUBLISHER, ty) for t, ty in pubs} | {
+        t: (ros.SUBSCRIPTION, ty) for t, ty in subs
+    }
+    keys = {ros.liveliness_key(0, zid, node, 0, 0, ros.NODE)}
+    for i, topic in enumerate(order, start=1):
+        kind, ty = kinds[topic]
+        keys.add(ros.liveliness_key(0, zid, node, 0, i, kind, topic, ty))
+    return keys
+
+
+def test_both_ends_are_in_the_ros2_graph_while_the_link_is_open(tmp_path):
+    """A ROS 2 context on rmw_zenoh learns the graph from liveliness tokens: while the link is
+    open both ends' nodes, publishers and subscriptions are there, with rmw_zenoh's keys;
+    closing the near end and stopping robot-sim remove them."""
+    from dsteleop.app.link.far import FAR_NODE
+    from dsteleop.app.link.near import NEAR_NODE
+
+    far_port, obs_port = free_port(), free_port()
+    far_ep, obs_ep = f"tcp/127.0.0.1:{far_port}", f"tcp/127.0.0.1:{obs_port}"
+    cfg = tmp_path / "link.json"
+    # the near end connects to the far end and to the observer (peers do not relay for others)
+    cfg.write_text(
+        json.dumps(
+            {
+                "far": {"listen": [far_ep]},
+                "near": {"connect": [far_ep, obs_ep]},
+                "connect_timeout_s": 5.0,
+            }
+        )
+    )
+    far = Far(cfg)
+    observer = open_session(Endpoints(listen=(obs_ep,), connect=(far_ep,)), 5.0, "observer")
+    t = LinkConfig().topics
+    P, J = ros.POSE_STAMPED, ros.JOINT_STATE
+    deletes: list[str] = []
+
+    def on_token(sample: Any) -> None:
+        if str(sample.kind).endswith("DELETE"):
+            deletes.append(str(sample.key_expr))
+
+    watcher = observer.liveliness().declare_subscriber(f"{ros.LIVELINESS_PREFIX}/0/**", on_token)
+    robot = None
+    try:
+        keys = _wait_tokens(observer, lambda k: len(k) >= 6)
+        far_nodes = [k for k in keys if k.endswith("/NN/%/%/" + FAR_NODE.name)]
+        assert len(far_nodes) == 1, keys
+        far_zid = far_nodes[0].split("/")[2]
+        far_keys = _expected(
+            far_zid,
+            FAR_NODE,
+            pubs=[(t.state_pose, P), (t.state_joints, J), (t.state_fingers, J)],
+            subs=[(t.command_pose, P), (t.command_fingers, J)],
+            order=[
+                t.command_pose,
+                t.command_fingers,
+                t.state_pose,
+                t.state_joints,
+                t.state_fingers,
+            ],
+        )
+        assert keys == far_keys
+
+        robot = ZenohRobot(read_link_config(cfg))
+        near_keys = _expected(
+            str(robot.node.zid),
+            NEAR_NODE,
+            pubs=[(t.command_pose, P), (t.command_fingers, J)],
+            subs=[(t.state_pose, P), (t.state_joints, J), (t.state_fingers, J)],
+            order=[
+                t.command_pose,
+                t.command_fingers,
+                t.state_pose,
+                t.state_joints,
+                t.state_fingers,
+            ],
+        )
+        assert robot.node.zid != far_zid
+        keys = _wait_tokens(observer, lambda k: k >= near_keys)
+        assert keys == far_keys | near_keys
+        # every token parses as rmw_zenoh's Entity::make does: 9 chunks for a node, 13 else
+        for k in keys:
+            parts = k.split("/")
+            assert len(parts) == (9 if parts[5] == "NN" else 13) and all(parts), k
+
+        robot.close()
+        robot = None
+        keys = _wait_tokens(observer, lambda k: not (k & near_keys))
+        assert keys == far_keys
+        far.terminate()
+        keys = _wait_tokens(observer, lambda k: not k)
+        assert keys == set()
+        time.sleep(0.3)
+        assert set(deletes) == far_keys | near_keys
+    finally:
+        if robot is not None:
+            robot.close()
+        watcher.undeclare()
+        observer.close()
+        if far.proc.poll() is None:
+            far.kill()
