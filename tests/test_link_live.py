@@ -540,3 +540,41 @@ def test_both_ends_are_in_the_ros2_graph_while_the_link_is_open(tmp_path):
         observer.close()
         if far.proc.poll() is None:
             far.kill()
+
+
+def test_each_token_goes_with_its_entity_while_the_session_stays_open():
+    """Closing a publisher or subscription undeclares its own token at once (not only when the
+    session ends); the node's token goes with the node."""
+    from dsteleop.app.link.session import Node
+
+    port = free_port()
+    ep = f"tcp/127.0.0.1:{port}"
+    observer = open_session(Endpoints(listen=(ep,)), 5.0, "observer")
+    session = open_session(Endpoints(connect=(ep,)), 5.0, "test")
+    try:
+        node = Node(session, 0, ros.RosNode("probe", namespace="/lab"))
+        pub = Topic(session, 0, "/lab/cmd", ros.POSE_STAMPED, node)
+        sub = Subscription(session, 0, "/lab/state", ros.JOINT_STATE, ros.decode_joints, node=node)
+        zid = str(session.zid())
+        n = ros.RosNode("probe", namespace="/lab")
+        node_key = ros.liveliness_key(0, zid, n, 0, 0, ros.NODE)
+        pub_key = ros.liveliness_key(0, zid, n, 0, 1, ros.PUBLISHER, "/lab/cmd", ros.POSE_STAMPED)
+        sub_key = ros.liveliness_key(
+            0, zid, n, 0, 2, ros.SUBSCRIPTION, "/lab/state", ros.JOINT_STATE
+        )
+        assert (node.key, pub.token_key, sub.token_key) == (node_key, pub_key, sub_key)
+        assert _wait_tokens(observer, lambda k: len(k) == 3) == {node_key, pub_key, sub_key}
+        pub.close()
+        assert _wait_tokens(observer, lambda k: len(k) == 2) == {node_key, sub_key}
+        sub.close()
+        node.close()
+        assert _wait_tokens(observer, lambda k: not k) == set()
+        # a probe without a node declares nothing
+        quiet = Topic(session, 0, "/lab/cmd", ros.POSE_STAMPED)
+        assert quiet.token_key is None
+        time.sleep(0.3)
+        assert _tokens(observer) == set()
+        quiet.close()
+    finally:
+        session.close()
+        observer.close()
