@@ -26,6 +26,7 @@ from typing import Any
 
 from dsteleop.app.cli.options import add_config_options, arbitration_config
 from dsteleop.app.cli.progress import Progress, prepare_out_dir
+from dsteleop.app.cli.world_options import add_world_arguments, world_overrides
 from dsteleop.arbitration import Mode, registered
 from dsteleop.errors import ConfigError
 
@@ -98,49 +99,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="K",
         help="trajectory drawn in Fig. 5c, 5d and 6 (default: the first that moves y before x)",
     )
-    parser.add_argument(
-        "--goal-sigma",
-        type=float,
-        default=None,
-        metavar="M",
-        help="robot goal position noise per axis [m] (default 0.02; docs/operator.md)",
-    )
-    parser.add_argument(
-        "--delay",
-        type=float,
-        default=None,
-        metavar="S",
-        help="teleoperation delay each way [s] (default 0.2; docs/operator.md)",
-    )
-    parser.add_argument(
-        "--depth-sigma",
-        type=float,
-        default=None,
-        metavar="M",
-        help="the operator's misjudgement of the robot's depth in its one camera view [m] "
-        "(default 0.015; docs/operator.md)",
-    )
-    parser.add_argument(
-        "--attempts",
-        type=int,
-        default=None,
-        metavar="N",
-        help="runs per simulated person and mode (default 3, the paper's three runs)",
-    )
-    parser.add_argument(
-        "--success-radius",
-        type=float,
-        default=None,
-        metavar="M",
-        help="success radius R [m] (default 0.03)",
-    )
-    parser.add_argument(
-        "--success-heading",
-        type=float,
-        default=None,
-        metavar="RAD",
-        help="success heading tolerance delta [rad] (default 0.35)",
-    )
+    add_world_arguments(parser)
     add_config_options(parser)
     parser.add_argument(
         "--sweep",
@@ -180,7 +139,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def command(args: argparse.Namespace) -> SimCommand:
     """The command's settings; bad values raise ConfigError with one line."""
-    from dsteleop.app.operator.world import Impairments
     from dsteleop.app.study.core import SimConfig, all_modes
     from dsteleop.app.study.run import workers_for
 
@@ -194,27 +152,7 @@ def command(args: argparse.Namespace) -> SimCommand:
         raise ConfigError(
             f"unknown operator {args.operator!r} (choose from {', '.join(OPERATORS)})"
         )
-    extra: dict[str, Any] = {}
-    world: dict[str, float] = {}
-    for arg, name in (
-        ("goal_sigma", "goal_sigma_m"),
-        ("delay", "delay_s"),
-        ("depth_sigma", "depth_sigma_m"),
-    ):
-        v = getattr(args, arg)
-        if v is not None:
-            world[name] = float(v)
-    if world:
-        extra["world"] = Impairments().replace(**world)
-    if args.attempts is not None:
-        extra["attempts"] = args.attempts
-    for arg, name in (
-        ("success_radius", "success_radius_m"),
-        ("success_heading", "success_heading_rad"),
-    ):
-        v = getattr(args, arg)
-        if v is not None:
-            extra[name] = float(v)
+    extra = world_overrides(args)
     sweep = None
     if args.sweep is not None:
         from dsteleop.app.study.sweep import parse_grid
