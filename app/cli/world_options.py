@@ -10,11 +10,52 @@ the same world.
 from __future__ import annotations
 
 import argparse
+import math
 from typing import Any
+
+from dsteleop.errors import ConfigError
+
+#: The worlds `--world` names: the default (one grasp, the robot's goal position noisy) and
+#: the disagreement world (two right grasps, docs/operator.md).
+WORLDS: tuple[str, ...] = ("wrong-goal", "disagreement")
 
 
 def add_world_arguments(parser: argparse.ArgumentParser) -> None:
     a = parser.add_argument
+    a(
+        "--world",
+        default=None,
+        help="wrong-goal (default: one grasp, the robot's goal position noisy) or disagreement "
+        "(two right grasps, top and side; the robot goes to one, each person prefers one; "
+        "goal noise 0 unless --goal-sigma; docs/operator.md)",
+    )
+    a(
+        "--robot-grasp",
+        default=None,
+        metavar="NAME",
+        help="disagreement world: the grasp the robot goes to, top (default) or side",
+    )
+    a(
+        "--prefer-robot-share",
+        type=float,
+        default=None,
+        metavar="P",
+        help="disagreement world: the share of people who prefer the robot's grasp (0.5)",
+    )
+    a(
+        "--adaptability",
+        default=None,
+        metavar="LO,HI",
+        help="disagreement world: each person's chance of switching to the robot's grasp at a "
+        "resistance pause is drawn from U(LO, HI) (default 0,1)",
+    )
+    a(
+        "--grasp-separation",
+        type=float,
+        default=None,
+        metavar="RAD",
+        help="disagreement world: the side grasp's heading from the top grasp's (default pi/2)",
+    )
     a(
         "--goal-sigma",
         type=float,
@@ -63,9 +104,29 @@ def add_world_arguments(parser: argparse.ArgumentParser) -> None:
 def world_overrides(args: argparse.Namespace) -> dict[str, Any]:
     """The `SimConfig` fields the world options set (ConfigError on a bad value)."""
     from dsteleop.app.operator.world import Impairments
+    from dsteleop.app.study.grasps import Grasps
 
     extra: dict[str, Any] = {}
     world: dict[str, float] = {}
+    kind = "wrong-goal" if args.world is None else str(args.world)
+    if kind not in WORLDS:
+        raise ConfigError(f"unknown world {kind!r} (choose from {', '.join(WORLDS)})")
+    grasp_options = {
+        "robot_grasp": args.robot_grasp,
+        "prefer_robot_share": args.prefer_robot_share,
+        "adaptability": args.adaptability,
+        "separation_rad": args.grasp_separation,
+    }
+    given = {k: v for k, v in grasp_options.items() if v is not None}
+    if kind == "disagreement":
+        if "adaptability" in given:
+            given["adaptability"] = _interval(str(given["adaptability"]), "--adaptability")
+        extra["grasps"] = Grasps(**given)
+        world["goal_sigma_m"] = 0.0  # both agents are right, unless --goal-sigma says not
+    elif given:
+        option = "--" + sorted(given)[0].replace("_rad", "").replace("_", "-")
+        option = option.replace("separation", "grasp-separation")
+        raise ConfigError(f"{option} goes with --world disagreement")
     for arg, name in (
         ("goal_sigma", "goal_sigma_m"),
         ("delay", "delay_s"),
@@ -86,3 +147,15 @@ def world_overrides(args: argparse.Namespace) -> dict[str, Any]:
         if v is not None:
             extra[name] = float(v)
     return extra
+
+
+def _interval(text: str, option: str) -> tuple[float, float]:
+    """`LO,HI` as two floats (ConfigError naming `option` otherwise)."""
+    parts = text.split(",")
+    try:
+        lo, hi = (float(p) for p in parts)
+    except ValueError:
+        raise ConfigError(f"{option} must be LO,HI (two numbers), got {text!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        raise ConfigError(f"{option} must be finite, got {text!r}")
+    return lo, hi

@@ -36,9 +36,13 @@ what the arbitration takes), in discrete submovements:
     clutch     a finger already fully open cannot open the robot's further (the rate
                mapping): the person closes it fully, then opens it again
     settle     a person whose own preference the robot resists settles for the task: at
-               its first resistance pause, a row whose intention has `settle_targets`
-               replaces its targets and tolerances by those (the task's goal and success
-               tolerance) for the rest of the trial
+               a resistance pause, a row whose intention has `settle_targets` replaces its
+               targets and tolerances by those (the task's goal and success tolerance, or
+               the robot's way of doing it) for the rest of the trial; which pause is the
+               row's `settle_after` (1: the first, the default; a person who adapts with
+               probability alpha at each disagreement, Nikolaidis et al.'s bounded-memory
+               adaptation model, settles after a geometric number of pauses, and one that
+               never adapts keeps its own way until its patience runs out)
     satisfied  within the final stage's tolerance, it holds still; satisfied for `hold_s`
                in a row, it commits (grasps: `committed`) and is done
     patience   after `patience_s` without being done, it gives up and holds still (at
@@ -157,6 +161,8 @@ class Intention:
         settle_targets: what a row settles for after resistance (N, S), or None (it never
             settles): the task's own goals, where `targets` hold the person's preference.
         settle_tolerance: (N, S, 3) the tolerances it then accepts (the task's).
+        settle_after: (N,) the resistance pause at which a row settles (1: its first; a
+            count above any trial's pauses: never), or None (every row at its first).
     """
 
     targets: HandState
@@ -166,10 +172,13 @@ class Intention:
     turn_within_m: Array
     settle_targets: HandState | None = None
     settle_tolerance: Array | None = None
+    settle_after: NDArray[np.int64] | None = None
 
     def __post_init__(self) -> None:
         if (self.settle_targets is None) != (self.settle_tolerance is None):
             raise ValueError("settle_targets and settle_tolerance go together")
+        if self.settle_after is not None and (self.settle_after < 1).any():
+            raise ValueError("settle_after counts pauses from 1")
 
     def take(self, keep: NDArray[np.bool_]) -> Intention:
         st, tol = self.settle_targets, self.settle_tolerance
@@ -177,6 +186,7 @@ class Intention:
             self.targets.take(keep), self.tolerance[keep], self.mask[keep], self.n_stages[keep],
             self.turn_within_m[keep], None if st is None else st.take(keep),
             None if tol is None else tol[keep],
+            None if self.settle_after is None else self.settle_after[keep],
         )  # fmt: skip
 
     def of_rows(self, idx: NDArray[np.intp], settled: NDArray[np.bool_]) -> tuple[HandState, Array]:
@@ -216,6 +226,7 @@ class _Rows:
     done: NDArray[np.bool_]
     gave_up: NDArray[np.bool_]
     settled: NDArray[np.bool_]
+    pauses: NDArray[np.int64]  # resistance pauses so far
     t_done: Array
     delay: Array
     decision: Array
@@ -285,6 +296,7 @@ class ClosedLoopOperator:
             done=np.zeros(N, dtype=bool),
             gave_up=np.zeros(N, dtype=bool),
             settled=np.zeros(N, dtype=bool),
+            pauses=np.zeros(N, dtype=np.int64),
             t_done=np.full(N, np.nan),
             delay=delay,
             decision=decision,
@@ -311,6 +323,11 @@ class ClosedLoopOperator:
     def settled(self) -> NDArray[np.bool_]:
         """(N,) settled for the task's goal and tolerance after resistance."""
         return self._rows.settled
+
+    @property
+    def pauses(self) -> NDArray[np.int64]:
+        """(N,) resistance pauses each row has made (counted where it can settle)."""
+        return self._rows.pauses
 
     @property
     def t_done(self) -> Array:
@@ -492,8 +509,11 @@ class ClosedLoopOperator:
         r.dwell_until[idx[pausing]] = t_s + pause[pausing]
         r.resisted[idx[pausing]] = 0
         r.gain[idx[pausing]] = 1.0
-        if it.settle_targets is not None:  # resisted: it settles for the task
-            r.settled[idx[pausing]] = True
+        if it.settle_targets is not None:  # resisted: it settles, at its own pause
+            p_idx = idx[pausing]
+            r.pauses[p_idx] += 1
+            after = 1 if it.settle_after is None else it.settle_after[p_idx]
+            r.settled[p_idx] |= r.pauses[p_idx] >= after
         r.planned[idx] = False
         if not go.any():
             return

@@ -69,6 +69,7 @@ from dsteleop.app.operator.open_loop import (
 )
 from dsteleop.app.operator.world import CommandDelay, Impairments
 from dsteleop.app.session.trace import Trace
+from dsteleop.app.study.grasps import Grasps, settle_after
 from dsteleop.arbitration import (
     STEP_ARRAYS,
     ArbitrationConfig,
@@ -174,6 +175,9 @@ class SimConfig:
         max_paths: trajectories whose paths are kept for the distribution figure.
         arbitration: arbitration hyper-parameters.
         strategy: operator strategy; None gives planar_strategy(arbitration).
+        grasps: the disagreement world (`app.study.grasps.Grasps`: two right grasps, the
+            robot going to one, each closed-loop person preferring one and adapting with its
+            own probability), or None: the one grasp at the normal (the default world).
     """
 
     trajectories: int = 1000
@@ -202,6 +206,7 @@ class SimConfig:
     max_paths: int = 200
     arbitration: ArbitrationConfig = field(default_factory=ArbitrationConfig)
     strategy: OperatorStrategy | None = None
+    grasps: Grasps | None = None
 
     def __post_init__(self) -> None:
         if isinstance(self.trajectories, bool) or not isinstance(self.trajectories, int):
@@ -242,6 +247,22 @@ class SimConfig:
             )
         if self.max_paths < 0:
             raise ConfigError(f"max_paths must be >= 0, got {self.max_paths}")
+        if self.grasps is not None:
+            if not isinstance(self.grasps, Grasps):
+                raise ConfigError(f"grasps must be a Grasps, got {self.grasps!r}")
+            self.grasps.check(self.success_heading_rad, self.operator_tolerance_rad)
+
+    @property
+    def grasp_headings(self) -> tuple[float, ...]:
+        """The headings of the task's grasps [rad]: the normal alone, or each of `grasps`."""
+        n = self.handle_normal_rad
+        return (n,) if self.grasps is None else tuple(n + o for o in self.grasps.offsets_rad())
+
+    @property
+    def robot_heading(self) -> float:
+        """The heading of the grasp the robot's policy goes to (before its noise) [rad]."""
+        g = self.grasps
+        return self.handle_normal_rad + (0.0 if g is None else g.offset_of(g.robot_grasp))
 
     @property
     def operator_strategy(self) -> OperatorStrategy:
@@ -287,6 +308,10 @@ class SimConfig:
                 v = _jsonable(dataclasses.asdict(self.operator_strategy))
             elif f.name == "profile":
                 v = _jsonable(dataclasses.asdict(self.operator_profile))
+            elif f.name == "grasps":
+                if v is None:  # the default world's summary stays as it was
+                    continue
+                v = v.to_dict()
             elif isinstance(v, tuple):
                 v = list(v)
             out[f.name] = v
@@ -315,22 +340,33 @@ def in_success_region(
     xy: Array,
     heading: Array,
     handle_xy: Array | Sequence[float],
-    normal: float,
+    normal: float | Sequence[float],
     R: float,
     delta: float,
 ) -> NDArray[np.bool_]:
-    """The success test: within R [m] of the handle and within delta [rad] of its normal.
+    """The success test: within R [m] of the handle and within delta [rad] of its normal (of
+    any one of its grasps' normals, where it has several).
 
     Args:
         xy: (..., 2) positions [m].
         heading: (...) headings [rad].
         handle_xy: (2,) handle position [m].
-        normal: heading of the grasp normal [rad].
+        normal: heading of the grasp normal [rad], or of each grasp.
         R: radius [m].
         delta: heading tolerance [rad].
     """
     d = np.linalg.norm(np.asarray(xy) - np.asarray(handle_xy), axis=-1)
-    return np.asarray((d <= R) & (np.abs(wrap(np.asarray(heading) - normal)) <= delta))
+    normals = (normal,) if isinstance(normal, (int, float)) else tuple(normal)
+    aligned = np.abs(wrap(np.asarray(heading) - normals[0])) <= delta
+    for n in normals[1:]:
+        aligned = aligned | (np.abs(wrap(np.asarray(heading) - n)) <= delta)
+    return np.asarray((d <= R) & aligned)
+
+
+def grasp_of(cfg: SimConfig, heading: Array) -> NDArray[np.int64]:
+    """The index of the grasp (`cfg.grasp_headings`) nearest in heading to each `heading`."""
+    h = np.asarray(heading)[..., None]
+    return np.asarray(np.argmin(np.abs(wrap(h - np.asarray(cfg.grasp_headings))), axis=-1))
 
 
 @dataclass(frozen=True)
@@ -373,7 +409,7 @@ def _draws(cfg: SimConfig, index: int) -> tuple[np.random.Generator, Array]:
         [
             hx + sigma * noise[0],
             hy + sigma * noise[1],
-            cfg.handle_normal_rad + cfg.goal_heading_sigma_rad * noise[2],
+            cfg.robot_heading + cfg.goal_heading_sigma_rad * noise[2],
         ]
     )
     return rng, robot_goal
@@ -391,7 +427,7 @@ def robot_goal(cfg: SimConfig, index: int, attempt: int) -> Array:
         [
             hx + sigma * noise[0],
             hy + sigma * noise[1],
-            cfg.handle_normal_rad + cfg.goal_heading_sigma_rad * noise[2],
+            cfg.robot_heading + cfg.goal_heading_sigma_rad * noise[2],
         ]
     )
 
@@ -423,6 +459,10 @@ class ClosedTrial:
         lead: the operator moves along y before x.
         turn_within_m: it turns the heading only within this of the handle [m].
         seed: the seed of its own generator (the same in every mode: paired).
+        grasp: the grasp it prefers (an index of `GRASP_NAMES`; 0 in the default world).
+        adaptability: its probability of switching to the robot's grasp at a resistance
+            pause (1 in the default world: it settles at its first).
+        settle_after: the resistance pause at which it settles (1 in the default world).
     """
 
     index: int
@@ -431,6 +471,9 @@ class ClosedTrial:
     lead: bool
     turn_within_m: float
     seed: tuple[int, int, int]
+    grasp: int = 0
+    adaptability: float = 1.0
+    settle_after: int = 1
 
 
 def sample_closed_trial(cfg: SimConfig, index: int) -> ClosedTrial:
@@ -441,7 +484,23 @@ def sample_closed_trial(cfg: SimConfig, index: int) -> ClosedTrial:
     lead = bool(rng.random() < cfg.lead_probability)
     turn_within = float(rng.uniform(0.05, 0.15))
     op_goal = np.array([hx, hy, cfg.handle_normal_rad - offset])
-    return ClosedTrial(index, robot_goal, op_goal, lead, turn_within, (cfg.seed, index, 1))
+    seed = (cfg.seed, index, 1)
+    g = cfg.grasps
+    if g is None:
+        return ClosedTrial(index, robot_goal, op_goal, lead, turn_within, seed)
+    # The disagreement world: drawn after the default world's draws, which stay the same.
+    prefers_robot = bool(rng.random() < g.prefer_robot_share)
+    grasp = g.robot_index if prefers_robot else 1 - g.robot_index
+    alpha = float(rng.uniform(*g.adaptability))
+    after = settle_after(float(rng.random()), alpha, NEVER_SETTLES)
+    op_goal = np.array([hx, hy, cfg.grasp_headings[grasp]])
+    return ClosedTrial(
+        index, robot_goal, op_goal, lead, turn_within, seed, grasp, alpha, after
+    )  # fmt: skip
+
+
+#: A pause count no trial reaches (a person of adaptability 0 never switches).
+NEVER_SETTLES = 1_000_000
 
 
 def closed_operator(
@@ -451,8 +510,10 @@ def closed_operator(
     `attempt` (each run its own random stream: (seed, n, 1) for run 0, then (seed, n, 1, a)).
 
     Each wants the robot at the true handle with its own heading within its own tolerance;
-    after resistance it settles for the task: the true handle and the normal, within the
-    success radius and heading tolerance (the via stage of a y-first person is unchanged)."""
+    after resistance it settles for the task: the true handle and the normal (in the
+    disagreement world: the robot's grasp), within the success radius and heading tolerance
+    (the via stage of a y-first person is unchanged), at its first resistance pause (in the
+    disagreement world: at its own, `ClosedTrial.settle_after`)."""
     N = len(trials)
     sx, sy = cfg.start_xy_m
     h0 = cfg.start_heading
@@ -482,7 +543,7 @@ def closed_operator(
     task = planar_state(
         np.stack([first[:, 0], np.full(N, hx)], 1),
         np.stack([first[:, 1], np.full(N, hy)], 1),
-        np.stack([first[:, 2], np.full(N, cfg.handle_normal_rad)], 1),
+        np.stack([first[:, 2], np.full(N, cfg.robot_heading)], 1),
     )
     accept = (cfg.success_radius_m, cfg.success_heading_rad, 1.0)
     task_tolerance = np.stack(
@@ -491,6 +552,7 @@ def closed_operator(
     intention = Intention(
         targets, tolerance, mask, np.where(lead, 2, 1).astype(np.int64),
         np.array([t.turn_within_m for t in trials]), task, task_tolerance,
+        None if cfg.grasps is None else np.array([t.settle_after for t in trials]),
     )  # fmt: skip
     start = planar_state(np.full(N, sx), np.full(N, sy), np.full(N, h0))
     rngs = [np.random.default_rng(t.seed if attempt == 0 else (*t.seed, attempt)) for t in trials]
@@ -523,6 +585,7 @@ class ModeResult:
     hand_final: Array  # (N, 3) the hand's final x, y, heading
     attempt: NDArray[np.int64]  # (N,) the run of each row (0 first)
     history_norm: Array  # (N,) |eq (6)'s history term| (L1) the run's arbitration received
+    settled: NDArray[np.bool_]  # (N,) the closed-loop operator settled (the task's or robot's way)
 
 
 #: ModeResult's fields that are not one row per trial (summed or kept for the first paths).
@@ -600,6 +663,7 @@ def hist_ranges(cfg: SimConfig) -> Array:
         cfg.start_heading,
         cfg.handle_normal_rad,
         cfg.handle_normal_rad - cfg.side_offset_rad[1],
+        *cfg.grasp_headings,
     ]
     return np.array(
         [
@@ -747,6 +811,7 @@ class _Hands:
     lengths: NDArray[np.int64]  # (C N,) states of each trial (closed loop: T until it ends)
     gave_up: NDArray[np.bool_]  # (C N,) the operator gave up (closed loop)
     committed: NDArray[np.bool_]  # (C N,) the operator committed (open loop: all)
+    settled: NDArray[np.bool_]  # (C N,) the operator settled (closed loop)
 
     def start(self) -> HandState:
         raise NotImplementedError
@@ -776,6 +841,7 @@ class _OpenHands(_Hands):
         self.lengths = np.tile(lengths, copies)
         self.gave_up = np.zeros(copies * N, dtype=bool)
         self.committed = np.ones(copies * N, dtype=bool)
+        self.settled = np.zeros(copies * N, dtype=bool)
         self.T = int(hands_tm.position.shape[0])
         self.cols = np.tile(np.arange(N), copies)  # the trajectory of each current row
 
@@ -807,6 +873,7 @@ class _ClosedHands(_Hands):
         self.lengths = np.full(N, T, dtype=np.int64)
         self.gave_up = np.zeros(N, dtype=bool)  # by original row (the operator compacts)
         self.committed = np.zeros(N, dtype=bool)
+        self.settled = np.zeros(N, dtype=bool)
         self.line = CommandDelay(op.start, delay)
         self.prev = op.start
 
@@ -830,6 +897,7 @@ class _ClosedHands(_Hands):
         self.lengths[ended] = np.minimum(k + 2 + np.where(committed, self.settle, 0), self.T - 1)
         self.gave_up[ended] = self.op.gave_up[newly]
         self.committed[ended] = committed
+        self.settled[ended] = self.op.settled[newly]
 
     def keep(self, keep: NDArray[np.bool_], k: int) -> None:
         self.op.select(keep)
@@ -1075,6 +1143,7 @@ def _run_modes(
             n_paths,
             attempt,
             h_norm[part],
+            hands.settled[part],
         )
     return out
 
@@ -1093,6 +1162,7 @@ def _mode_result(
     n_paths: int,
     attempt: int = 0,
     history_norm: Array | None = None,
+    settled: NDArray[np.bool_] | None = None,
 ) -> ModeResult:
     """One mode's per-trajectory results from its robot's and hand's states (T, N, 3) and
     its actions (T - 1, N, ...), time-major. A closed-loop trial succeeds only if its operator
@@ -1139,7 +1209,7 @@ def _mode_result(
 
     def inside(p: Array) -> NDArray[np.bool_]:
         return in_success_region(
-            p[..., :2], p[..., 2], cfg.handle_xy_m, cfg.handle_normal_rad,
+            p[..., :2], p[..., 2], cfg.handle_xy_m, cfg.grasp_headings,
             cfg.success_radius_m, cfg.success_heading_rad,
         )  # fmt: skip
 
@@ -1177,6 +1247,7 @@ def _mode_result(
         hand_final=hand[rows, last],
         attempt=np.full(N, attempt, dtype=np.int64),
         history_norm=np.zeros(N) if history_norm is None else history_norm,
+        settled=np.zeros(N, dtype=bool) if settled is None else settled,
     )
 
 
@@ -1379,6 +1450,53 @@ def summarise(res: StudyResult, figures: StudyResult | None = None) -> dict[str,
     }
     if "S" in res.modes and "DS" in res.modes:
         out["tests"]["S_vs_DS"] = compare(res.modes["S"], res.modes["DS"])
+    if cfg.grasps is not None and cfg.closed_loop:
+        out["disagreement"] = disagreement_summary(res)
+    return out
+
+
+def disagreement_summary(res: StudyResult) -> dict[str, Any]:
+    """The disagreement world's outcomes, apart for the people who prefer the robot's grasp
+    (they agree with it) and those who prefer the other (they disagree in the heading): per
+    mode each group's success, time, give-ups, the share that switched to the robot's grasp,
+    and which grasp the settled pose is in."""
+    cfg = res.config
+    g = cfg.grasps
+    assert g is not None
+    trials = [sample_closed_trial(cfg, n) for n in range(cfg.trajectories)]
+    prefers = np.repeat(np.array([t.grasp for t in trials]), cfg.runs)
+    robot = g.robot_index
+    names = ("top", "side")
+    groups = {"prefers_robot_grasp": prefers == robot, "prefers_other_grasp": prefers != robot}
+    out: dict[str, Any] = {
+        "grasps": g.to_dict(),
+        "robot_grasp": g.robot_grasp,
+        "people": {k: int(v.sum() // cfg.runs) for k, v in groups.items()},
+        "modes": {},
+    }
+    for name, r in res.modes.items():
+        final_grasp = grasp_of(cfg, r.final[:, 2])
+        inside = in_success_region(
+            r.final[:, :2], r.final[:, 2], cfg.handle_xy_m, cfg.grasp_headings,
+            cfg.success_radius_m, cfg.success_heading_rad,
+        )  # fmt: skip
+        per: dict[str, Any] = {}
+        for key, rows in groups.items():
+            n = int(rows.sum())
+            sr = metrics.success_rate(int(r.success[rows].sum()), n)
+            ok = r.success[rows]
+            per[key] = {
+                "n": n,
+                "success_rate": {"estimate": sr.laplace, "ci95": [sr.ci_low, sr.ci_high]},
+                "time_s": metrics.geometric_mean(r.time_s[rows]).mean if n else None,
+                "gave_up_share": float(r.gave_up[rows].mean()) if n else None,
+                "switched_share": float(r.settled[rows].mean()) if n else None,
+                "successes_in": {
+                    names[k]: int((ok & (final_grasp[rows] == k)).sum()) for k in range(2)
+                },
+                "settled_in_a_grasp_share": float(inside[rows].mean()) if n else None,
+            }
+        out["modes"][name] = per
     return out
 
 

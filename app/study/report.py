@@ -216,6 +216,8 @@ def markdown(summary: dict[str, Any]) -> str:
             vals = " | ".join("n/a" if v is None else f"{v:.3f}" for v in m["by_phase"][key])
             lines.append(f"| {name} | {label} | {vals} |")
     lines += divergence_section(summary["divergence"], "(x, y, heading)")
+    if "disagreement" in summary:
+        lines += disagreement_section(summary["disagreement"])
     c = summary["config"]
     lines += [
         "",
@@ -229,6 +231,40 @@ def markdown(summary: dict[str, Any]) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def disagreement_section(d: dict[str, Any]) -> list[str]:
+    """The disagreement world's table: each mode's outcomes for the people who prefer the
+    robot's grasp and for those who prefer the other, apart."""
+    g = d["grasps"]
+    lines = [
+        "",
+        "## The disagreement world: people who agree with the robot's grasp, and who do not",
+        "",
+        f"Two right grasps (top at the normal, side {g['separation_rad']:.4f} rad from it); the "
+        f"robot goes to `{d['robot_grasp']}`; {d['people']['prefers_robot_grasp']} people prefer "
+        f"it, {d['people']['prefers_other_grasp']} the other; each switches to the robot's grasp "
+        f"at a resistance pause with its own probability, U({g['adaptability'][0]:g}, "
+        f"{g['adaptability'][1]:g}) (docs/operator.md).",
+        "",
+        "| Mode | People | Success [95 % CI] | Time [s] | Gave up | Switched "
+        "| Successes top / side |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    labels = {"prefers_robot_grasp": "agree", "prefers_other_grasp": "disagree"}
+    for name, per in d["modes"].items():
+        for key, label in labels.items():
+            r = per[key]
+            if not r["n"]:
+                continue
+            sr = r["success_rate"]
+            lo, hi = sr["ci95"]
+            lines.append(
+                f"| {name} | {label} ({r['n']} runs) | {sr['estimate']:.3f} [{lo:.3f}, {hi:.3f}] "
+                f"| {r['time_s']:.2f} | {r['gave_up_share']:.3f} | {r['switched_share']:.3f} "
+                f"| {r['successes_in']['top']} / {r['successes_in']['side']} |"
+            )
+    return lines
 
 
 def _runs_table(summary: dict[str, Any]) -> list[str]:
