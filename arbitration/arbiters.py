@@ -21,6 +21,18 @@ modes are plug-ins (`arbitration/modes/`): `manual` alpha = 0; `autonomous` alph
 eq (3); `scalar` eq (3) with a cap and a scale; `DS` eq (8) on moving windows of B_i and
 alpha_i (its own filter state).
 
+What "X_human" eq (4)-(6) read is `ArbitrationConfig.human_reference` (docs/METHOD.md §2):
+"hand" (the default) reads the hand's mapped pose itself; "leaky" reads the hand's reference
+X_ref, a pose whose lead over the robot decays with time constant tau = `human_leak_s`:
+
+    X_ref_k = X_current_k (+) exp(-dt / tau) * ((X_ref_{k-1} (+) U_human dt) (-) X_current_k)
+
+((+) and (-) are `se3.integrate` and `se3.diff`: positions and openness add, rotations go
+through the rotation vector of their difference), restarted at the robot's segment start
+(X_ref_{-1} = X_start, which is also its start for eq (6)). It is per-row state of the
+arbiter (`FilterState.reference`), restarted with the modes' state at each new segment.
+U_human is the hand's own motion either way.
+
 All arrays may carry a leading batch shape (the states broadcast against each other; the
 filter state is made for the tick's batch shape); the loop runs a batch of one, the
 simulation study thousands of trajectories.
@@ -51,9 +63,12 @@ from dsteleop.arbitration.policy import bound_into, human_action_into, robot_act
 from dsteleop.arbitration.se3 import (
     HandState,
     batch_of,
+    diff,
     diff_into,
+    integrate,
     integrate_into,
     row,
+    saturate,
     state_input,
 )
 from dsteleop.errors import ConfigError
@@ -133,11 +148,15 @@ class FilterState:
         own: (mode name, its state) for every registered mode with a state of its own (DS's
             moving windows, `modes.ds.Windows`); a mode registered later starts from its
             initial state on its first tick.
+        reference: the hand's leaky reference X_ref of the last tick, of the batch's shape
+            (`human_reference="leaky"`, module docstring); None at a segment's start (and
+            always under "hand").
     """
 
     batch: tuple[int, ...]
     dims: int
     own: tuple[tuple[str, Any], ...] = ()
+    reference: HandState | None = None
 
     def of(self, mode: Mode | str) -> Any:
         """The own state of `mode` (None if it has none yet)."""
@@ -175,7 +194,8 @@ class FilterState:
     def select(self, keep: NDArray[np.bool_]) -> FilterState:
         """The state of the batch rows `keep` (a mask on a one-axis batch)."""
         own = tuple((name, st.select(keep)) for name, st in self.own)
-        return FilterState((int(np.count_nonzero(keep)),), self.dims, own)
+        ref = None if self.reference is None else self.reference.take(keep)
+        return FilterState((int(np.count_nonzero(keep)),), self.dims, own, ref)
 
 
 @dataclass(frozen=True)
@@ -228,7 +248,9 @@ class StateRows(NamedTuple):
 
 
 class TickStates(NamedTuple):
-    """The tick's states, as the compiled kernels take them (one named batch)."""
+    """The tick's states, as the compiled kernels take them (one named batch): `reading` and
+    `reading_start` are what eq (4)-(6) read as the human's state and its start (the hand's
+    own arrays under `human_reference="hand"`, the leaky reference's under "leaky")."""
 
     human: StateRows
     human_prev: StateRows
@@ -238,12 +260,16 @@ class TickStates(NamedTuple):
     start: StateRows
     goal: StateRows
     ref: StateRows
+    reading: StateRows
+    reading_start: StateRows
 
 
 #: The kernels' indices of the states of `TickStates` (a plain tuple reaches them: numba
 #: dispatches a named tuple several times slower than the same tuple).
 _HUMAN, _HUMAN_PREV, _HUMAN_START, _CURRENT, _PREV, _START, _GOAL, _REF = range(8)
+_READING, _READING_START = 8, 9
 assert TickStates._fields.index("ref") == _REF and TickStates._fields.index("goal") == _GOAL
+assert TickStates._fields[_READING:] == ("reading", "reading_start")
 
 
 @dataclass(frozen=True)
@@ -316,8 +342,12 @@ class Arbiter:
             wanted = _EVERY if every_quantity else rows.reads_allocation
         dt = float(inp.dt)
         X_ref = inp.X_current if inp.X_ref is None else inp.X_ref
+        reading, reading_start, reference = inp.X_human, inp.X_human_start, None
+        if cfg.human_reference == "leaky":
+            reference = leaky_reference(state.reference, inp, cfg)
+            reading, reading_start = reference, inp.X_start
         # The named batch, as the plain tuple the kernels take (fields of `TickStates`).
-        s = tuple(state_input(X, batch) for X in (*states, X_ref))
+        s = tuple(state_input(X, batch) for X in (*states, X_ref, reading, reading_start))
         history = np.zeros(D) if inp.history_term is None else inp.history_term
         out, l1 = _shared(
             s, as_input(history, batch, 1), wanted, _per_dim_params(cfg, F, dt),
@@ -340,8 +370,12 @@ class Arbiter:
             if st is None:
                 st = spec.initial_state(cfg, D, M)
             own[name] = spec.alpha(params, q, idx, st)
-        if len(own) != len(state.own) or any(own[n] is not st for n, st in state.own):
-            state = FilterState(state.batch, D, tuple(own.items()))
+        if (
+            reference is not None
+            or len(own) != len(state.own)
+            or any(own[n] is not st for n, st in state.own)
+        ):
+            state = FilterState(state.batch, D, tuple(own.items()), reference)
         (Cp, CR, _), (Rp, RR, Rg) = s[_CURRENT], s[_REF]
         p, R, g = _finish(
             Cp, CR, Rp, RR, Rg, out, dt,
@@ -352,6 +386,23 @@ class Arbiter:
         arrays_out: dict[str, Any] = {n: out[k].reshape(shape) for k, n in enumerate(STEP_ARRAYS)}
         X_next = HandState(p.reshape(*batch, 3), R.reshape(*batch, 3, 3), g.reshape(*batch, F))
         return state, ArbitrationStep(**arrays_out, X_next=X_next)
+
+
+def leaky_reference(
+    previous: HandState | None, inp: ArbitrationInput, cfg: ArbitrationConfig
+) -> HandState:
+    """The hand's leaky reference X_ref of this tick (module docstring), from the last tick's
+    (`previous`; None at a segment's start: it restarts at X_start), carried by the hand's
+    motion U_human and its lead over X_current decayed by exp(-dt / human_leak_s).
+
+    Returns it with the tick's batch shape (what `FilterState.reference` keeps)."""
+    dt = float(inp.dt)
+    F = inp.X_current.n_fingers
+    last = inp.X_start if previous is None else previous
+    U_human = saturate(diff(inp.X_human, inp.X_human_prev) / dt, cfg.v_max(F))
+    carried = integrate(last, U_human, dt)
+    lead = diff(carried, inp.X_current) * math.exp(-dt / cfg.human_leak_s)
+    return integrate(inp.X_current, lead, 1.0)
 
 
 #: Rows of the kernel's scratch array of differences.
@@ -405,11 +456,12 @@ def _shared(
     """
     Hp, HR, Hg = s[_HUMAN][0], s[_HUMAN][1], s[_HUMAN][2]
     Pp, PR, Pg = s[_HUMAN_PREV][0], s[_HUMAN_PREV][1], s[_HUMAN_PREV][2]
-    Sp, SR, Sg = s[_HUMAN_START][0], s[_HUMAN_START][1], s[_HUMAN_START][2]
     Cp, CR, Cg = s[_CURRENT][0], s[_CURRENT][1], s[_CURRENT][2]
     Qp, QR, Qg = s[_PREV][0], s[_PREV][1], s[_PREV][2]
     Tp, TR, Tg = s[_START][0], s[_START][1], s[_START][2]
     Gp, GR, Gg = s[_GOAL][0], s[_GOAL][1], s[_GOAL][2]
+    Ep, ER, Eg = s[_READING][0], s[_READING][1], s[_READING][2]
+    Op, OR, Og = s[_READING_START][0], s[_READING_START][1], s[_READING_START][2]
     F = Cg.shape[1]
     D = 6 + F
     gains, v_max, floor, still_step, still_offset = (
@@ -434,7 +486,8 @@ def _shared(
     # to the start, per agent) and the two unit directions of eq (6).
     d, u = np.empty((6, D)), np.empty((2, D))
     for m in range(M):
-        h, hp, hs = row(Hp.shape[0], m), row(Pp.shape[0], m), row(Sp.shape[0], m)
+        h, hp = row(Hp.shape[0], m), row(Pp.shape[0], m)
+        e, es = row(Ep.shape[0], m), row(Op.shape[0], m)
         c, cp, cs = row(Cp.shape[0], m), row(Qp.shape[0], m), row(Tp.shape[0], m)
         gl, hr = row(Gp.shape[0], m), row(history.shape[0], m)
         diff_into(Gp, GR, Gg, gl, Cp, CR, Cg, c, d, _GOAL_R)
@@ -453,9 +506,9 @@ def _shared(
             for i in range(D):
                 P_h[m, i] = P_r[m, i] = B[m, i] = psi_h[m, i] = psi_r[m, i] = np.nan
             continue
-        diff_into(Gp, GR, Gg, gl, Hp, HR, Hg, h, d, _GOAL_H)
+        diff_into(Gp, GR, Gg, gl, Ep, ER, Eg, e, d, _GOAL_H)
         diff_into(Cp, CR, Cg, c, Qp, QR, Qg, cp, d, _PREV_R)
-        diff_into(Hp, HR, Hg, h, Sp, SR, Sg, hs, d, _START_H)
+        diff_into(Ep, ER, Eg, e, Op, OR, Og, es, d, _START_H)
         diff_into(Cp, CR, Cg, c, Tp, TR, Tg, cs, d, _START_R)
         # Eq (4)/(5): P(H), P(R); the goal-start distances are the robot's (its start).
         for i in range(D):

@@ -24,7 +24,17 @@ Defaults (and why):
                       the scale of psi), so B stays finite, and an operator who is not changing
                       speed while the robot is not either gets B ~ 0 (control goes to them).
     mode_params       each mode's own parameters (`arbitration/modes/`), by mode name; written
-                      `<mode>.<field>` in the flat form (`to_dict`, `--param scalar.cap=0.5`).
+                      `<mode>.<field>` in the flat form (`to_dict`, `--param scalar.cap=0.5`);
+                      a mode's shorthand sets several (`--param DS.cap=0.5`: DS's three caps).
+    human_reference   what eq (4)-(6) read as X_human (docs/METHOD.md §2): "hand", the hand's
+                      mapped pose (the paper's reading; under the rate mapping the integral of
+                      the hand's motion, which drifts without bound from a robot that resists
+                      it), or "leaky", the hand's reference whose lead over the robot decays
+                      (`arbiters.leaky_reference`), bounded by about v_max * human_leak_s.
+    human_leak_s      the leaky reference's time constant, 1.0 s: about one submovement of a
+                      reach (0.3-0.5 s) plus the dwell after it, so a lead the person keeps
+                      pushing for survives a movement, and one they stopped pushing for fades
+                      within about a second (their intent is then where the robot is).
     max_lead_m/_rad   eq (2) integrates the commanded reference, which may lead the achieved
                       palm by at most 3 cm / 0.25 rad (`policy.advance_reference`): a robot
                       that lags its position controller keeps the hand's full motion, and one
@@ -38,7 +48,7 @@ import functools
 import json
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -52,6 +62,13 @@ RETIRED = frozenset({"eps_trans_m", "eps_rot_rad", "eps_finger"})
 
 #: A hyper-parameter out of its domain (the project's `ConfigError`; the message names it).
 InvalidConfig = ConfigError
+
+#: What eq (4)-(6) may read as X_human (`ArbitrationConfig.human_reference`).
+HumanReference = Literal["hand", "leaky"]
+HUMAN_REFERENCES: tuple[str, ...] = ("hand", "leaky")
+
+#: The fields that are words, not numbers.
+_WORDS = frozenset({"human_reference"})
 
 
 @dataclass(frozen=True)
@@ -80,12 +97,14 @@ class ArbitrationConfig:
     psi_robot_floor: float = 0.25
     max_lead_m: float = 0.03
     max_lead_rad: float = 0.25
+    human_reference: HumanReference = "hand"
+    human_leak_s: float = 1.0
     #: (mode name, its parameters) of every mode with parameters of its own.
     mode_params: tuple[tuple[str, Any], ...] = field(default_factory=modes.default_params)
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
-            if f.name == "mode_params":
+            if f.name == "mode_params" or f.name in _WORDS:
                 continue
             value = getattr(self, f.name)
             if isinstance(value, bool) or not isinstance(value, (int, float)):
@@ -98,10 +117,15 @@ class ArbitrationConfig:
             raise InvalidConfig(f"q must be > 1 (beta prime needs a mean), got {self.q!r}")
         if not isinstance(self.window, int):
             raise InvalidConfig(f"window must be an integer >= 1, got {self.window!r}")
+        if self.human_reference not in HUMAN_REFERENCES:
+            raise InvalidConfig(
+                f"human_reference must be one of {', '.join(HUMAN_REFERENCES)}, "
+                f"got {self.human_reference!r}"
+            )
 
     def replace(self, **changes: Any) -> ArbitrationConfig:
         """A copy with some fields changed (validated; an unknown name is a ConfigError)."""
-        return ArbitrationConfig.from_dict({**self.to_dict(), **changes})
+        return ArbitrationConfig.from_dict({**self.to_dict(), **_expand_shorthands(changes)})
 
     def params_of(self, mode: str) -> Any:
         """The own parameters of `mode` (None for a mode without any)."""
@@ -123,7 +147,7 @@ class ArbitrationConfig:
     def from_dict(cls, data: dict[str, Any]) -> ArbitrationConfig:
         """From `to_dict`'s form; a missing mode parameter takes its default."""
         names = set(cls.field_names())
-        data = {k: v for k, v in data.items() if k not in RETIRED}
+        data = _expand_shorthands({k: v for k, v in data.items() if k not in RETIRED})
         own: dict[str, dict[str, Any]] = {}
         for k in [k for k in data if "." in k]:
             mode, _, name = k.partition(".")
@@ -150,6 +174,11 @@ class ArbitrationConfig:
                 )
             params[mode] = dataclasses.replace(params[mode], **given)
         return cls(**data, mode_params=tuple(params.items()))
+
+    @classmethod
+    def word_fields(cls) -> frozenset[str]:
+        """The shared parameters whose values are words (`human_reference`), not numbers."""
+        return _WORDS
 
     @classmethod
     def field_names(cls) -> tuple[str, ...]:
@@ -185,6 +214,20 @@ class ArbitrationConfig:
     def still_offset(self, n_fingers: int) -> NDArray[np.float64]:
         """Eq (6): the smallest difference from the start that has a direction."""
         return _per_dim(self.still_distance_m, self.still_angle_rad, self.still_openness, n_fingers)
+
+
+def _expand_shorthands(data: dict[str, Any]) -> dict[str, Any]:
+    """The flat form with the modes' shorthands (`ModeSpec.shorthands`, `DS.cap`) replaced
+    by the parameters they set; a parameter given by its own name wins."""
+    out = dict(data)
+    for spec in (m.spec for m in modes.registered()):
+        for short, names in spec.shorthands:
+            key = f"{spec.name}.{short}"
+            if key in out:
+                value = out.pop(key)
+                for name in names:
+                    out.setdefault(f"{spec.name}.{name}", value)
+    return out
 
 
 @functools.lru_cache(maxsize=256)

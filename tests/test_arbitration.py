@@ -9,6 +9,7 @@ invariants (bounds, round trips) and the documented semantics of the moving wind
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import subprocess
@@ -1077,3 +1078,131 @@ def test_loop_ports_and_session_import_no_heavy_modules(module: str) -> None:
     else:
         code = f"import {module}"
     assert _heavy_modules_after(code) == []
+
+
+# --- what X_human is under the rate mapping, and the leaky reference (issue 31) -------------
+
+
+def _pushing(cfg: ArbitrationConfig, seconds: float) -> tuple[list[float], list[float], Array]:
+    """A hand that keeps moving in +x at 0.1 m/s against a robot held by alpha = 1 (the
+    autonomous rule, the goal where the robot is): the hand's lead over the robot |X_human -
+    X_current| and the lead of what eq (4)-(6) read (the hand, or its leaky reference), per
+    tick, and P(H) of x per tick."""
+    arb = make_arbiter(Mode.AUTONOMOUS, cfg)
+    X = state([0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
+    fs = arb.initial_state(6 + F)
+    hand_prev = X
+    hand_lead, read_lead, P_x = [], [], []
+    for k in range(1, round(seconds / DT) + 1):
+        hand = state([0.1 * k * DT, 0.0, 0.0], [0.0, 0.0, 0.0])
+        fs, r = arb.step(
+            fs,
+            ArbitrationInput(
+                X_human=hand, X_human_prev=hand_prev, X_human_start=X, X_current=X,
+                X_prev=X, X_start=X, X_goal=X, dt=DT,
+            ),
+        )  # fmt: skip
+        np.testing.assert_array_equal(r.X_next.position, X.position)  # the robot is held
+        read = hand if fs.reference is None else fs.reference
+        hand_lead.append(float(np.linalg.norm(hand.position - X.position)))
+        read_lead.append(float(np.linalg.norm(read.position - X.position)))
+        P_x.append(float(r.P_human[0]))
+        hand_prev = hand
+    return hand_lead, read_lead, np.array(P_x)
+
+
+def test_under_the_rate_mapping_x_human_drifts_from_a_robot_that_resists() -> None:
+    """docs/METHOD.md §2: the hand's mapped pose integrates its motion, so against a robot
+    held in place its distance from the robot grows linearly with time (0.1 m/s here), and
+    P(H) (eq 4) reads how long the person pushed, not where they want the robot."""
+    hand_lead, read_lead, P_x = _pushing(ArbitrationConfig(), 6.0)
+    assert read_lead == hand_lead  # "hand": eq (4)-(6) read the hand itself
+    t = DT * np.arange(1, len(hand_lead) + 1)
+    np.testing.assert_allclose(hand_lead, 0.1 * t, rtol=1e-9)
+    assert hand_lead[-1] == pytest.approx(0.6) and np.all(np.diff(hand_lead) > 0)
+    assert np.all(np.diff(P_x) <= 0) and P_x[-1] < 1e-6  # P(H) only falls, to nothing
+
+
+def test_the_leaky_reference_stays_within_v_tau_of_the_robot() -> None:
+    """The same push, "leaky": the reference's lead settles at v dt e / (1 - e) (e =
+    exp(-dt / tau)), about v tau, instead of growing."""
+    for tau in (0.5, 1.0):
+        cfg = ArbitrationConfig(human_reference="leaky", human_leak_s=tau)
+        hand_lead, read_lead, P_x = _pushing(cfg, 6.0)
+        e = math.exp(-DT / tau)
+        limit = 0.1 * DT * e / (1.0 - e)
+        assert limit == pytest.approx(0.1 * (tau - DT / 2), rel=1e-3)  # about v tau
+        assert max(read_lead) <= limit * (1 + 1e-9)
+        assert read_lead[-1] == pytest.approx(limit, rel=5e-3)  # within e^-6 after 6 s
+        assert hand_lead[-1] == pytest.approx(0.6)  # the hand itself drifted on
+        # P(H) of x no longer falls with the time pushed: in the last second it stays far
+        # above the hand's reading (which is ~0 by then).
+        late = P_x[-round(1.0 / DT) :]
+        assert late.min() > 100 * _pushing(ArbitrationConfig(), 6.0)[2][-1]
+
+
+def test_the_leaky_reference_is_the_hand_when_the_robot_follows_the_hand() -> None:
+    """Manual mode, the robot exactly at the hand every tick (rotations and fingers moving
+    too, under the velocity limits): the leaky reference has no lead to decay, so every
+    output equals "hand"'s."""
+    path = [
+        state([0.02 * np.sin(0.2 * k), 0.05 * k * DT, 0.0], [0.2 * np.sin(0.1 * k), 0.0, 0.01 * k],
+              0.5 + 0.3 * np.sin(0.15 * k))
+        for k in range(40)
+    ]  # fmt: skip
+    goal = state([0.3, 0.2, 0.1], [0.0, 0.5, 0.0])
+    out = {}
+    for ref in ("hand", "leaky"):
+        arb = make_arbiter(Mode.MANUAL, ArbitrationConfig(human_reference=ref))
+        fs = arb.initial_state(6 + F)
+        steps = []
+        for prev, hand in itertools.pairwise(path):
+            fs, r = arb.step(
+                fs,
+                ArbitrationInput(
+                    X_human=hand, X_human_prev=prev, X_human_start=path[0], X_current=hand,
+                    X_prev=prev, X_start=path[0], X_goal=goal, dt=DT,
+                ),
+            )  # fmt: skip
+            steps.append(r)
+            if ref == "leaky":
+                assert fs.reference is not None
+                assert_states_close(fs.reference, hand, atol=1e-12)
+        out[ref] = steps
+    for a, b in zip(out["hand"], out["leaky"], strict=True):
+        assert_step_matches(a, b, atol=1e-9)
+
+
+def test_the_leaky_reference_is_per_row_state_restarted_with_the_segment() -> None:
+    """A batch keeps one reference per row (`FilterState.reference`), `select` keeps the
+    rows', and a fresh state (a segment's start) restarts it at X_start."""
+    rng = np.random.default_rng(2)
+    cfg = ArbitrationConfig(human_reference="leaky")
+    arb = make_arbiter(Mode.DS, cfg)
+    inp = random_input(rng, (4,), F)
+    fs, _ = arb.step(arb.initial_state(6 + F, (4,)), inp)
+    assert fs.reference is not None and fs.reference.batch == (4,)
+    keep = np.array([True, False, True, True])
+    kept = fs.select(keep)
+    assert kept.reference is not None
+    np.testing.assert_array_equal(kept.reference.position, fs.reference.position[keep])
+    fs2, _ = arb.step(fs, inp)
+    fresh, _ = arb.step(arb.initial_state(6 + F, (4,)), inp)
+    assert fs2.reference is not None and fresh.reference is not None
+    assert not np.allclose(fs2.reference.position, fs.reference.position)  # carried on
+    np.testing.assert_array_equal(fresh.reference.position, fs.reference.position)  # restarted
+    assert arb.initial_state(6 + F, (4,)).reference is None
+
+
+@pytest.mark.parametrize(
+    ("changes", "match"),
+    [
+        ({"human_reference": "foo"}, "human_reference must be one of hand, leaky"),
+        ({"human_leak_s": 0.0}, "human_leak_s must be finite and > 0"),
+    ],
+)
+def test_a_bad_human_reference_is_a_config_error(changes: dict[str, object], match: str) -> None:
+    with pytest.raises(ConfigError, match=match):
+        ArbitrationConfig().replace(**changes)
+    cfg = ArbitrationConfig(human_reference="leaky", human_leak_s=0.5)
+    assert ArbitrationConfig.from_json(cfg.to_json()) == cfg

@@ -5,6 +5,7 @@ line and exit code 2."""
 
 from __future__ import annotations
 
+import argparse
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -263,10 +264,200 @@ def test_tune_mode_scalar_searches_its_own_parameters(tmp_path: Path) -> None:
     assert [r.state for r in recs] == ["COMPLETE", "COMPLETE"], [r.error for r in recs]
     for r in recs:
         assert set(r.params) == {"scalar.cap", "scalar.scale"}
-        assert 0.2 <= r.params["scalar.cap"] <= 1.0
+        assert 0.05 <= r.params["scalar.cap"] <= 1.0
         assert r.value == r.metrics["study.scalar.agreement"]
         assert r.constraints == (
             r.metrics["study.S.successes"] - r.metrics["study.scalar.successes"],
         )
     with pytest.raises(ConfigError, match="S is the reference"):
         Objective(mode="S")
+
+
+# --- DS's own authority caps (issue 31: the baselines' levers equal) -------------------------
+
+#: `_outputs_digest()` with the code of commit 8b0c905 (before DS had caps and before
+#: `human_reference`): regenerate by running that function on that commit.
+DIGEST_BEFORE_CAPS = "8ede7deaab215e52d60bfd9a3d2f4644d684b5c841487eb68e717d7201e9cf66"
+
+
+def _outputs_digest(cfg: ArbitrationConfig | None = None) -> str:
+    """SHA-256 of every output of 12 ticks of a mixed batch of the built-in modes (3 random
+    rows each, 2 fingers), closed loop on X_next, from a seeded generator (only API that the
+    commit of DIGEST_BEFORE_CAPS has)."""
+    import hashlib
+
+    rng = np.random.default_rng(31)
+    names = ("DS", "S", "manual", "autonomous", "scalar")
+    modes = [Mode.parse(n) for n in names for _ in range(3)]
+    M, F = len(modes), 2
+
+    def states() -> HandState:
+        return HandState(
+            rng.uniform(-0.3, 0.3, (M, 3)), so3_exp(rng.normal(0.0, 0.8, (M, 3))),
+            rng.uniform(0.0, 1.0, (M, F)),
+        )  # fmt: skip
+
+    arb = make_arbiter(Mode.DS, cfg)
+    rows = RowModes.of(modes)
+    fs = arb.initial_state(6 + F, (M,))
+    X, goal, start, hand_start, hand_prev = states(), states(), states(), states(), states()
+    prev = X
+    h = hashlib.sha256()
+    for _ in range(12):
+        hand = states()
+        inp = ArbitrationInput(
+            X_human=hand, X_human_prev=hand_prev, X_human_start=hand_start, X_current=X,
+            X_prev=prev, X_start=start, X_goal=goal, dt=1.0 / 30.0, X_ref=X,
+        )  # fmt: skip
+        fs, step = arb.step(fs, inp, rows)
+        for name in STEP_ARRAYS:
+            h.update(np.ascontiguousarray(getattr(step, name)).tobytes())
+        for a in (step.X_next.position, step.X_next.rotation, step.X_next.openness):
+            h.update(np.ascontiguousarray(a).tobytes())
+        prev, X, hand_prev = X, step.X_next, hand
+    return h.hexdigest()
+
+
+def test_every_mode_at_the_defaults_is_bit_identical_to_before_the_caps() -> None:
+    """DS's caps at 1.0 and human_reference="hand" change no output's last bit."""
+    assert _outputs_digest() == DIGEST_BEFORE_CAPS
+    explicit = ArbitrationConfig().replace(
+        **{"DS.cap": 1.0, "human_reference": "hand", "scalar.cap": 1.0}
+    )
+    assert _outputs_digest(explicit) == DIGEST_BEFORE_CAPS
+    capped = ArbitrationConfig().replace(**{"DS.cap_rotation": 0.5})
+    assert _outputs_digest(capped) != DIGEST_BEFORE_CAPS  # the digest sees the caps
+
+
+def test_ds_caps_multiply_each_groups_alpha_after_the_window() -> None:
+    """alpha = cap_g * (eq 8 on its windows): the windows keep the uncapped alpha, so every
+    tick's capped alpha is cap_g times the uncapped one to the last bit; B is DS's own."""
+    rng = np.random.default_rng(7)
+    M, F = 6, 3
+    caps = {"DS.cap_translation": 0.3, "DS.cap_rotation": 0.6, "DS.cap_fingers": 0.9}
+    free = make_arbiter(Mode.DS, ArbitrationConfig(window=4))
+    capped = make_arbiter(Mode.DS, ArbitrationConfig(window=4).replace(**caps))
+    cap = np.array([0.3] * 3 + [0.6] * 3 + [0.9] * F)
+    fs_free, fs_cap = free.initial_state(6 + F, (M,)), capped.initial_state(6 + F, (M,))
+    for _ in range(6):  # past the window
+        inp = _input(rng, M, F)
+        fs_free, a = free.step(fs_free, inp)
+        fs_cap, b = capped.step(fs_cap, inp)
+        np.testing.assert_array_equal(b.alpha, cap * a.alpha)
+        for name in ("P_human", "P_robot", "B", "U_human", "U_robot"):
+            np.testing.assert_array_equal(getattr(b, name), getattr(a, name))
+        np.testing.assert_array_equal(fs_cap.alpha_window, fs_free.alpha_window)
+        assert np.all(b.alpha <= cap)
+        np.testing.assert_allclose(
+            b.U_out, b.alpha * b.U_robot + (1 - b.alpha) * b.U_human, rtol=0, atol=1e-15
+        )
+
+
+def test_ds_cap_shorthand_sets_all_three_and_round_trips() -> None:
+    cfg = ArbitrationConfig().replace(**{"DS.cap": 0.2})
+    p = cfg.params_of("DS")
+    assert (p.cap_translation, p.cap_rotation, p.cap_fingers) == (0.2, 0.2, 0.2)
+    # A cap given by its own name wins over the shorthand.
+    both = ArbitrationConfig.from_dict({"DS.cap": 0.2, "DS.cap_rotation": 0.7})
+    assert both.params_of("DS").cap_rotation == 0.7 and both.params_of("DS").cap_fingers == 0.2
+    d = both.to_dict()
+    assert "DS.cap" not in d  # written as the parameters themselves
+    assert (d["DS.cap_translation"], d["DS.cap_rotation"], d["DS.cap_fingers"]) == (0.2, 0.7, 0.2)
+    assert ArbitrationConfig.from_dict(d) == both
+    assert ArbitrationConfig.from_json(both.to_json()) == both
+    old = ArbitrationConfig.from_dict({"kappa": 4.0})  # a session recorded before the caps
+    assert old.params_of("DS").cap_translation == 1.0
+
+
+@pytest.mark.parametrize(
+    ("name", "value"),
+    [("DS.cap", 1.5), ("DS.cap_rotation", 0.0), ("DS.cap_fingers", float("inf"))],
+)
+def test_a_bad_ds_cap_is_a_config_error(name: str, value: float) -> None:
+    with pytest.raises(ConfigError, match=r"DS\.cap\w* must be in \(0, 1\]"):
+        ArbitrationConfig().replace(**{name: value})
+
+
+@pytest.mark.parametrize(
+    ("command", "args"),
+    [
+        ("sim", ("--trajectories", "2", "--out", "o")),
+        ("tune", ("--trials", "1", "--out", "o")),
+        ("run", ("--source", "demo")),
+        ("serve", ("--source", "demo")),
+    ],
+)
+def test_every_command_with_param_accepts_ds_cap(command: str, args: tuple[str, ...]) -> None:
+    """`--param DS.cap=0.2` through each command's own parser and checks (what it runs with)."""
+    import importlib
+
+    from dsteleop.app.cli.main import COMMANDS, build_parser
+
+    parser = build_parser()
+    module = importlib.import_module(COMMANDS[command][0])
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    module.add_arguments(sub.choices[command])
+    parsed = parser.parse_args([command, *args, "--param", "DS.cap=0.2"])
+    cmd = module.command(parsed)
+    if command == "sim":
+        cfg = cmd.study.arbitration
+    elif command == "tune":
+        cfg = ArbitrationConfig.from_dict(cmd.given["base"])
+    else:
+        cfg = cmd.options.loop.arbitration
+    p = cfg.params_of("DS")
+    assert (p.cap_translation, p.cap_rotation, p.cap_fingers) == (0.2, 0.2, 0.2)
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (("sim", "--trajectories", "2", "--param", "DS.cap=1.5", "--out", "o"), "DS.cap"),
+        (("sim", "--trajectories", "2", "--param", "DS.cap_rotation=0", "--out", "o"), "DS.cap"),
+        (("tune", "--trials", "1", "--param", "DS.cap=1.5", "--out", "o"), "DS.cap"),
+        (("run", "--source", "demo", "--param", "DS.cap_rotation=0"), "DS.cap_rotation"),
+        (("serve", "--source", "demo", "--param", "DS.cap=1.5"), "DS.cap"),
+        (
+            ("sim", "--trajectories", "2", "--param", "human_reference=foo", "--out", "o"),
+            "human_reference",
+        ),
+    ],
+)
+def test_a_bad_ds_cap_or_reference_is_one_line_and_exit_2(
+    args: tuple[str, ...], needle: str, tmp_path: Path
+) -> None:
+    r = _cli(*args, cwd=tmp_path)
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.count("\n") == 1 and needle in r.stderr, r.stderr
+
+
+def test_ds_and_scalar_search_their_caps_over_one_range() -> None:
+    ds = {d.name: d for d in parse_space([], "DS")}
+    scalar = {d.name: d for d in parse_space([], "scalar")}
+    assert "DS.cap_fingers" not in ds  # the planar study has no fingers
+    for d in (ds["DS.cap_translation"], ds["DS.cap_rotation"], scalar["scalar.cap"]):
+        assert (d.low, d.high, d.log) == (0.05, 1.0, False)
+
+
+def test_a_mixed_study_batch_keeps_each_rows_caps() -> None:
+    """The study's mixed batch (every_quantity=False, DS's and scalar's rows together): each
+    row's actions are its mode's alone, with its own mode's cap."""
+    rng = np.random.default_rng(9)
+    modes = [Mode.DS, Mode.SCALAR, Mode.S] * 4
+    M = len(modes)
+    cfg = ArbitrationConfig(window=3).replace(**{"DS.cap": 0.4, "scalar.cap": 0.7})
+    arb = make_arbiter(Mode.DS, cfg)
+    rows = RowModes.of(modes)
+    singles = {m: make_arbiter(m, cfg) for m in set(modes)}
+    fs = arb.initial_state(10, (M,))
+    fs_single = {m: a.initial_state(10, (M,)) for m, a in singles.items()}
+    for _ in range(4):
+        inp = _input(rng, M)
+        fs, mixed = arb.step(fs, inp, rows, every_quantity=False)
+        for m, single in singles.items():
+            fs_single[m], alone = single.step(fs_single[m], inp)
+            idx = [k for k, mk in enumerate(modes) if mk is m]
+            for name in ("alpha", "U_out"):
+                np.testing.assert_array_equal(getattr(mixed, name)[idx], getattr(alone, name)[idx])
+    assert mixed.alpha[[k for k, m in enumerate(modes) if m is Mode.DS]].max() <= 0.4
+    assert mixed.alpha[[k for k, m in enumerate(modes) if m is Mode.SCALAR]].max() <= 0.7

@@ -100,14 +100,19 @@ def read_config_file(path: Path | None) -> tuple[dict[str, Any], dict[str, Any]]
 
 
 def parse_params(items: list[str]) -> dict[str, Any]:
-    """NAME=VALUE pairs as numbers (an integer where the field is one)."""
+    """NAME=VALUE pairs as numbers (an integer where the field is one; the word as given
+    where the field is a word, `human_reference=leaky`: the configuration checks it)."""
     ints = {f for f, v in ArbitrationConfig().to_dict().items() if isinstance(v, int)}
+    words = ArbitrationConfig.word_fields()
     out: dict[str, Any] = {}
     for item in items:
         name, sep, value = item.partition("=")
         name = name.strip()
         if not sep or not name:
             raise ConfigError(f"--param needs NAME=VALUE, got {item!r}")
+        if name in words:
+            out[name] = value.strip()
+            continue
         try:
             number = float(value)
         except ValueError:

@@ -109,8 +109,12 @@ class Dimension:
 
 
 def field_kinds() -> Mapping[str, bool]:
-    """Every ArbitrationConfig field -> whether it is an integer."""
-    return {k: isinstance(v, int) for k, v in ArbitrationConfig().to_dict().items()}
+    """Every numeric ArbitrationConfig field (a word, `human_reference`, is not searched) ->
+    whether it is an integer."""
+    words = ArbitrationConfig.word_fields()
+    return {
+        k: isinstance(v, int) for k, v in ArbitrationConfig().to_dict().items() if k not in words
+    }
 
 
 def parse_dimension(item: str) -> Dimension:

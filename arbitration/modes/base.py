@@ -18,6 +18,9 @@ mode's alpha rule on that mode's rows, then eq (1)-(2) for every row. A mode is 
     reads_allocation  whether its rule reads P(H), P(R), psi or B (eq 4-7; True unless it
                   says otherwise): a caller that needs only the actions (the study,
                   `Arbiter.step(..., every_quantity=False)`) skips them for the other rows
+    shorthands    names that set several of its parameters at once (`DS.cap` sets DS's three
+                  caps); written configurations hold only the parameters themselves, and a
+                  parameter given by its own name wins over a shorthand that sets it
 """
 
 from __future__ import annotations
@@ -89,6 +92,7 @@ class ModeSpec:
         initial_state: (config, dims, M) -> its own filter state, or None.
         reads_allocation: its rule reads P_human, P_robot, psi_human, psi_robot or B of
             `Quantities` (False: only the actions, alpha and eq (3)'s distances).
+        shorthands: (shorthand, the parameters it sets) pairs.
     """
 
     name: str
@@ -99,6 +103,7 @@ class ModeSpec:
     space: tuple[str, ...] = ()
     initial_state: Callable[[ArbitrationConfig, int, int], Any] | None = None
     reads_allocation: bool = True
+    shorthands: tuple[tuple[str, tuple[str, ...]], ...] = ()
 
 
 def check_range(

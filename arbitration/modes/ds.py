@@ -3,17 +3,26 @@
     B_f,i    = mean of B_i over the last `window` ticks (the window starts full of ones, so B
                starts at 1)
     a_i      = clip((P(R_i) - P(H_i)) * B_f,i + P(H_i), 0, 1)                            (8)
-    alpha_i  = mean of a_i over the last min(ticks seen, window) ticks
+    alpha_i  = cap_g * (mean of a_i over the last min(ticks seen, window) ticks)
+
+where g is the dimension's group (translation, rotation, fingers) and cap_g in (0, 1] DS's
+own authority cap for it (`DSParams`; the windows hold the uncapped a_i). The caps are the
+same lever as the scalar baseline's `cap` (alpha = cap * eq (3)), per group: a baseline and
+DS tuned with equal levers (issue 31). At their defaults (1.0) DS is the paper's eq (8) to
+the last bit (x * 1.0 == x). `DS.cap=X` is a shorthand that sets all three.
 
 The windows are DS's own filter state (`Windows`), over the rows of the batch (rows of other
 modes in a mixed batch keep theirs unchanged); they restart, with the segment, at each new
 goal (`Arbiter.initial_state`). DS reports the filtered B. Its parameters are the shared ones
 its alpha depends on (kappa of eq (5), p, q, b of eq (7), `window`), fields of
-`ArbitrationConfig`; its default tuning space searches them.
+`ArbitrationConfig`, and its own caps (`DS.cap_translation`, `DS.cap_rotation`,
+`DS.cap_fingers`); its default tuning space searches them, and the translation and rotation
+caps over the scalar's cap range (the planar study has no fingers).
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -22,10 +31,42 @@ from numpy.typing import NDArray
 
 from dsteleop.arbitration.allocation import ds_alpha_of
 from dsteleop.arbitration.jit import kernel
-from dsteleop.arbitration.modes.base import Array, ModeSpec, Quantities, Rows
+from dsteleop.arbitration.modes.base import Array, ModeSpec, Quantities, Rows, check_range
 
 if TYPE_CHECKING:
     from dsteleop.arbitration.config import ArbitrationConfig
+
+NAME = "DS"
+
+
+@dataclass(frozen=True)
+class DSParams:
+    """DS's own parameters: its authority cap per group of dimensions (module docstring).
+
+    Attributes:
+        cap_translation: the largest alpha of x, y, z, in (0, 1].
+        cap_rotation: the largest alpha of the three rotation dimensions, in (0, 1].
+        cap_fingers: the largest alpha of each finger's openness, in (0, 1].
+    """
+
+    cap_translation: float = 1.0
+    cap_rotation: float = 1.0
+    cap_fingers: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in ("cap_translation", "cap_rotation", "cap_fingers"):
+            check_range(NAME, name, getattr(self, name), 0.0, 1.0)
+
+
+@functools.lru_cache(maxsize=64)
+def caps(params: DSParams, dims: int) -> Array:
+    """(dims,) the cap of each dimension: translation x 3, rotation x 3, fingers x F
+    (read-only, cached: asked for every tick)."""
+    F = dims - 6
+    groups = (params.cap_translation,) * 3 + (params.cap_rotation,) * 3
+    out = np.array(groups + (params.cap_fingers,) * F, dtype=np.float64)
+    out.flags.writeable = False
+    return out
 
 
 @dataclass(frozen=True)
@@ -59,10 +100,11 @@ def initial_state(config: ArbitrationConfig, dims: int, M: int) -> Windows:
     return Windows(zeros, ones, 0)
 
 
-def alpha(params: None, q: Quantities, rows: Rows, state: Windows) -> Windows:
+def alpha(params: DSParams, q: Quantities, rows: Rows, state: Windows) -> Windows:
     new_alpha, new_B = _windows_rows(
         q.P_robot, q.P_human, q.B, q.alpha,
         _read_only(state.alpha_window), _read_only(state.B_window), state.count, rows,
+        caps(params, q.alpha.shape[1]),
     )  # fmt: skip
     new_alpha.flags.writeable = new_B.flags.writeable = False
     return Windows(new_alpha, new_B, state.count + 1)
@@ -80,10 +122,11 @@ def _read_only(window: Array) -> Array:
 @kernel
 def _windows_rows(
     P_r: Array, P_h: Array, B: Array, alpha: Array, alpha_window: Array, B_window: Array,
-    count: int, rows: Rows,
+    count: int, rows: Rows, cap: Array,
 ) -> tuple[Array, Array]:  # fmt: skip
-    """Eq (8) on the windows for the batch rows `rows`: writes alpha and the filtered B into
-    their rows, returns the new windows (other rows: their old ones, shifted)."""
+    """Eq (8) on the windows for the batch rows `rows`: writes alpha (times its dimension's
+    `cap`, after the window) and the filtered B into their rows, returns the new windows
+    (other rows: their old ones, shifted)."""
     W, M, D = B_window.shape
     new_alpha, new_B = np.empty((W, M, D)), np.empty((W, M, D))
     new_alpha[: W - 1] = alpha_window[1:]
@@ -105,16 +148,26 @@ def _windows_rows(
             a_sum = a_sum + a_raw if W > 1 else a_raw
             new_B[W - 1, m, i] = B[m, i]
             new_alpha[W - 1, m, i] = a_raw
-            alpha[m, i] = a_sum / min(count + 1, W)
+            alpha[m, i] = cap[i] * (a_sum / min(count + 1, W))
             B[m, i] = B_f  # the filtered B is the one reported
     return new_alpha, new_B
 
 
 SPEC = ModeSpec(
-    "DS",
+    NAME,
     "DS",
     alpha,
-    "eq (8) per dimension, on moving windows of B and alpha",
-    space=("kappa=log:1:40", "p=log:1.5:12", "q=log:1.5:12", "b=log:0.25:4", "window=int:1:15"),
+    "eq (8) per dimension, on moving windows of B and alpha, with a cap per group",
+    params=DSParams,
+    space=(
+        "kappa=log:1:40",
+        "p=log:1.5:12",
+        "q=log:1.5:12",
+        "b=log:0.25:4",
+        "window=int:1:15",
+        f"{NAME}.cap_translation=0.05:1",
+        f"{NAME}.cap_rotation=0.05:1",
+    ),
     initial_state=initial_state,
+    shorthands=(("cap", ("cap_translation", "cap_rotation", "cap_fingers")),),
 )

@@ -69,6 +69,6 @@ SPEC = ModeSpec(
     alpha,
     "cap * eq (3) at scale * the distance: S with a cap and a scale (the S-tuned baseline)",
     params=ScalarParams,
-    space=(f"{NAME}.cap=0.2:1", f"{NAME}.scale=log:0.2:5"),
+    space=(f"{NAME}.cap=0.05:1", f"{NAME}.scale=log:0.2:5"),
     reads_allocation=False,
 )
