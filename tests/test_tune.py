@@ -23,7 +23,7 @@ import pytest
 from dsteleop.app.cli.main import main
 from dsteleop.app.cli.options import add_loop_options, loop_options
 from dsteleop.app.study.core import SimConfig
-from dsteleop.app.tune import driver
+from dsteleop.app.tune import driver, edges
 from dsteleop.app.tune.objective import Objective, key
 from dsteleop.app.tune.space import DEFAULT_SPACE, parse_dimension, parse_space
 from dsteleop.app.tune.trial import StudyBatch, study_task
@@ -77,6 +77,45 @@ def test_space_errors_name_what_is_wrong(item: str, message: str) -> None:
 def test_a_parameter_named_twice_is_an_error() -> None:
     with pytest.raises(ConfigError, match="kappa more than once"):
         parse_space(["kappa=1:2", "kappa=3:4"])
+
+
+# --- edges of the best: found, widened, clipped to the domain ----------------------------------
+
+
+def test_edges_are_widened_within_the_fields_domain_and_a_domain_bound_is_not() -> None:
+    """The domains come from the validators (probed, not restated): scalar.cap in (0, 1] and
+    scale in (0, 100] (check_range), p > 1, window >= 1."""
+    base = ArbitrationConfig()
+    space = parse_space(
+        ["scalar.cap=0.9:1", "scalar.scale=log:0.2:50", "kappa=log:1:40", "p=log:1.5:12",
+         "q=log:1.5:12", "window=int:1:15", "b=0.25:4"]
+    )  # fmt: skip
+    best = {"scalar.cap": 0.999, "scalar.scale": 49.0, "kappa": 39.0, "p": 1.51, "q": 4.0,
+            "window": 1, "b": 2.0}  # fmt: skip
+    widened, found = edges.widen(space, best, base)
+    by_name = {e.name: e for e in found}
+    assert set(by_name) == {"scalar.cap", "scalar.scale", "kappa", "p", "window"}  # q, b inside
+    cap, window = by_name["scalar.cap"], by_name["window"]
+    assert (cap.side, cap.status, cap.new_end) == ("high", "domain", None)  # 1 is cap's bound
+    assert (window.side, window.status) == ("low", "domain")
+    assert "at its domain bound" in cap.describe()
+    scale, kappa, p = by_name["scalar.scale"], by_name["kappa"], by_name["p"]
+    assert (scale.status, scale.new_end, scale.clipped) == ("widened", 100.0, True)  # not 200
+    assert (kappa.status, kappa.new_end, kappa.clipped) == ("widened", 160.0, False)
+    assert p.status == "widened" and p.clipped and p.new_end is not None
+    assert 1.0 < p.new_end < 1.001  # p must be > 1
+    assert [d.spec for d in widened] == [
+        "scalar.cap=0.9:1", "scalar.scale=log:0.2:100", "kappa=log:1:160",
+        f"p=log:{p.new_end:g}:12", "q=log:1.5:12", "window=int:1:15", "b=0.25:4",
+    ]  # fmt: skip
+    # A low cap widens by half the range's width; an edge is within 5 % of the width (log
+    # width for a log range) of an end.
+    (low,) = edges.widen(parse_space(["scalar.cap=0.9:1"]), {"scalar.cap": 0.904}, base)[1]
+    assert (low.side, low.status, low.new_end) == ("low", "widened", 0.85)
+    assert edges.widen(parse_space(["scalar.cap=0.9:1"]), {"scalar.cap": 0.906}, base)[1] == []
+    (near,) = edges.edges_of(parse_space(["kappa=log:1:40"]), {"kappa": 40**0.96})
+    assert near[1] == "high"
+    assert edges.edges_of(parse_space(["kappa=log:1:40"]), {"kappa": 40**0.94}) == []
 
 
 # --- the objective ---------------------------------------------------------------------------
@@ -238,6 +277,8 @@ def _closed_port() -> int:
         (["--address", "ray://127.0.0.1:PORT"], "cannot reach a Ray cluster there"),
         (["--holdout-seed", "0"], "is the tuning trajectories' seed"),
         (["--resume"], "--resume: no tuning study"),
+        (["--goal-sigma", "-1"], "goal_sigma_m must be a number >= 0"),
+        (["--widen-edges", "-1"], "--widen-edges must be >= 0"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(
@@ -249,6 +290,20 @@ def test_bad_input_is_one_line_and_exit_2(
     assert code == 2, err
     assert len(err) == 1 and err[0].startswith("dsteleop tune: error:") and message in err[0]
     assert "ray" not in sys.modules  # nothing started
+
+
+def test_a_budget_is_trials_or_trials_per_parameter_not_both(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = ["tune", "--no-progress", "--out", str(tmp_path / "o")]
+    assert main([*out, "--trials-per-param", "0"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["dsteleop tune: error: --trials-per-param must be >= 1, got 0"]
+    with pytest.raises(SystemExit) as exc:  # argparse's own one line
+        main([*out, "--trials", "2", "--trials-per-param", "2"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--trials-per-param: not allowed with argument --trials" in err[0]
 
 
 def test_bad_input_in_a_subprocess_has_no_traceback(tmp_path: Path) -> None:
@@ -374,7 +429,7 @@ def test_a_study_on_a_local_ray_cluster_records_failures_and_resumes(tmp_path: P
 
 def check_best_json_round_trips_through_sim(out: Path, tmp_path: Path) -> None:
     best = json.loads((out / "best.json").read_text())
-    assert set(best) == {"schema", "arbitration", "objective", "note"}
+    assert set(best) == {"schema", "arbitration", "objective", "world", "note"}
     assert set(best["arbitration"]) == set(ArbitrationConfig().to_dict())
     sim_out = tmp_path / "sim"
     code = main(["sim", "--no-progress", "--no-figures", "--trajectories", "10",
@@ -408,3 +463,62 @@ def test_quick_bench_runs_the_same_trials_alone_and_on_1_and_2_ray_workers() -> 
         assert tune_[name]["cluster_start_s"] > 0
         assert tune_[name]["trials_per_minute_with_start"] < tune_[name]["trials_per_minute"]
     assert out["machine"]["cpu"] and out["machine_after"]["load_average"]
+
+
+@pytest.mark.slow
+def test_tuning_in_another_world_widens_an_edge_with_a_budget_per_parameter(
+    tmp_path: Path,
+) -> None:
+    """The scalar's cap over 0.9:1 (a grid of its two ends) in a world without goal noise:
+    the trials score that world (S succeeds otherwise than in the default one, on the same
+    trajectories), the best lands on the low edge, so the range is widened there and the
+    campaign run again with the same budget (2 trials per parameter), twice; each round is
+    stored apart, --resume continues them all and refuses another world."""
+    out, home = tmp_path / "study", tmp_path / "home"
+    args = ["--mode", "scalar", "--space", "scalar.cap=0.9:1", "--sampler", "grid",
+            "--grid-points", "2", "--trials-per-param", "2", "--trajectories", "20",
+            "--no-constraint", "--holdout-trajectories", "10", "--workers", "2",
+            "--no-figures"]  # fmt: skip
+    r = tune(out, home, *args, "--goal-sigma", "0")
+    assert r.returncode == 0, r.stderr
+    line = json.loads(r.stdout)
+    assert line["world"] == "the study's world with world.goal_sigma_m = 0.0"
+    assert line["budget"].startswith("--trials-per-param 2") and line["rounds"] == 3
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["settings"]["world"] == {"world": {"goal_sigma_m": 0.0}}
+    assert summary["budget"] == {**summary["budget"], "per_param": 2, "params": 1, "trials": 2}
+    rounds = summary["rounds"]
+    assert [x["space"] for x in rounds] == [
+        ["scalar.cap=0.9:1"],
+        ["scalar.cap=0.85:1"],
+        ["scalar.cap=0.775:1"],
+    ]
+    assert [x["trials"] for x in rounds] == [2, 2, 2]
+    # Each round's best lies on its low edge.
+    assert [x["best"]["params"]["scalar.cap"] for x in rounds] == [0.9, 0.85, 0.775]
+    assert [e["status"] for x in rounds for e in x["edges"]] == ["widened", "widened", "rounds"]
+    assert summary["edges"] == rounds[-1]["edges"] and line["edges"][0]["status"] == "rounds"
+    md = (out / "summary.md").read_text()
+    assert "world.goal_sigma_m = 0.0" in md and "## Edges of the search space" in md
+    assert "the widening rounds (--widen-edges) were used up" in md
+    assert "2 trials per searched parameter x 1 = 2" in md
+    for name in ("trials-round-0.csv", "widen-1/trials.csv", "widen-2/study.journal"):
+        assert (out / name).exists()
+    best = json.loads((out / "best.json").read_text())
+    assert best["world"]["overrides"] == {"world": {"goal_sigma_m": 0.0}}
+    assert best["arbitration"]["scalar.cap"] == 0.775
+    # The world reached the trials: the same trajectories in the default world differ.
+    default = study_task(StudyBatch(20, 0, "scalar"), ArbitrationConfig().to_dict())
+    row = read_trials(out)[0]
+    assert float(row["study.S.successes"]) != default[key("study", "S", "successes")]
+    assert summary["holdout"]["study"]["trajectories"] == 10
+
+    refused = tune(out, home, "--resume", "--goal-sigma", "0.01", "--trials-per-param", "2")
+    assert refused.returncode == 2 and refused.stderr.count("\n") == 1
+    assert "the study was made with world" in refused.stderr
+    again = tune(out, home, "--resume", "--trials-per-param", "2", "--holdout-trajectories", "0",
+                 "--no-figures", "--workers", "2")  # fmt: skip
+    assert again.returncode == 0, again.stderr
+    resumed = json.loads(again.stdout)
+    assert resumed["timing"]["trials_run"] == 0 and resumed["rounds"] == 3
+    assert resumed["best"] == line["best"]

@@ -26,6 +26,7 @@ malformed range, a missing session, an unreachable address is one line and exit 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import math
@@ -38,11 +39,15 @@ from typing import TYPE_CHECKING, Any, Literal
 
 from dsteleop.app.cli.options import arbitration_config
 from dsteleop.app.cli.progress import Progress, prepare_out_dir
+from dsteleop.app.cli.world_options import add_world_arguments, world_overrides
 from dsteleop.errors import ConfigError, InputError
 
 if TYPE_CHECKING:  # the command imports them when it runs (an instant --help)
+    import optuna
+
     from dsteleop.app.tune.cluster import RayExecutor
     from dsteleop.app.tune.driver import TrialRecord, TuneSettings
+    from dsteleop.app.tune.edges import Edge
 
 log = logging.getLogger("dsteleop.tune")
 
@@ -67,7 +72,10 @@ class TuneCommand:
         given: the options that define the search, as given on the command line (in the form
             of `TuneSettings.to_dict`); the rest take their defaults, or with `resume` the
             stored study's values (which the given ones must equal).
-        trials: the study's number of trials in all (with `resume`, including earlier ones).
+        trials: a campaign's number of trials in all (with `resume`, including earlier
+            ones); None: `trials_per_param` times the searched parameters.
+        trials_per_param: K of `--trials-per-param` (None: `trials` is fixed).
+        widen_edges: widening rounds after the first campaign (app/tune/edges.py; 0: none).
         out: the output folder (holds the study's storage).
         resume: continue the study stored in `out`.
         address: the Ray cluster (None: a local one).
@@ -82,8 +90,10 @@ class TuneCommand:
     """
 
     given: dict[str, Any]
-    trials: int
+    trials: int | None
     out: Path
+    trials_per_param: int | None = None
+    widen_edges: int = 2
     resume: bool = False
     address: str | None = None
     workers: int | None = None
@@ -107,7 +117,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="the mode tuned, paired with S in every trial: "
         f"{', '.join(m.value for m in registered() if m.value != 'S')} (default DS)",
     )
-    a("--trials", type=int, default=40, metavar="N", help="trials in all (default 40)")
+    budget = parser.add_mutually_exclusive_group()
+    budget.add_argument(
+        "--trials", type=int, default=None, metavar="N", help="trials in all (default 40)"
+    )
+    budget.add_argument(
+        "--trials-per-param",
+        type=int,
+        default=None,
+        metavar="K",
+        help="trials = K x the searched parameters (a fair comparison gives every mode the "
+        "same K; docs/tune.md)",
+    )
+    a(
+        "--widen-edges",
+        type=int,
+        default=2,
+        metavar="N",
+        help="widening rounds: a best value on its range's edge widens the range there and "
+        "the campaign is run again, up to N times (default 2; 0: off; docs/tune.md)",
+    )
     a("--out", required=True, type=Path, metavar="DIR", help="output folder (holds the study)")
     a(
         "--space",
@@ -142,6 +171,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="the study's tuning trajectories per trial (default 400)",
     )
     a("--study-seed", type=int, default=None, metavar="S", help="their seed (default 0)")
+    add_world_arguments(parser)
     a("--sessions", nargs="+", default=None, metavar="PATH", help="sessions (or folders) to replay")
     a(
         "--sessions-via",
@@ -224,6 +254,13 @@ def command(args: argparse.Namespace) -> TuneCommand:
         given["trajectories"] = args.trajectories
     if args.study_seed is not None:
         given["study_seed"] = args.study_seed
+    overrides = world_overrides(args)
+    if overrides:
+        from dsteleop.app.study.core import SimConfig
+        from dsteleop.app.tune.trial import world_of
+
+        SimConfig(trajectories=1, **overrides)  # a bad world: one line, now
+        given["world"] = dict(world_of(overrides))
     if args.space is not None:
         given["space"] = [d.spec for d in parse_space(args.space, given.get("mode", "DS"))]
     if args.sessions is not None:
@@ -231,8 +268,12 @@ def command(args: argparse.Namespace) -> TuneCommand:
     if args.config is not None or args.param:
         base, _ = arbitration_config(args)
         given["base"] = base.to_dict()
-    if args.trials < 1:
+    if args.trials is not None and args.trials < 1:
         raise ConfigError(f"--trials must be >= 1, got {args.trials}")
+    if args.trials_per_param is not None and args.trials_per_param < 1:
+        raise ConfigError(f"--trials-per-param must be >= 1, got {args.trials_per_param}")
+    if args.widen_edges < 0:
+        raise ConfigError(f"--widen-edges must be >= 0, got {args.widen_edges}")
     if args.holdout_trajectories < 0:
         raise ConfigError(f"--holdout-trajectories must be >= 0, got {args.holdout_trajectories}")
     if args.workers is not None and args.workers < 1:
@@ -248,8 +289,10 @@ def command(args: argparse.Namespace) -> TuneCommand:
         )
     return TuneCommand(
         given=given,
-        trials=int(args.trials),
+        trials=None if args.trials_per_param is not None else int(args.trials or 40),
         out=Path(args.out),
+        trials_per_param=args.trials_per_param,
+        widen_edges=int(args.widen_edges),
         resume=bool(args.resume),
         address=args.address,
         workers=args.workers,
@@ -321,6 +364,7 @@ def run(args: argparse.Namespace) -> int:
     cmd = command(args)
     from dsteleop.app.tune import driver
     from dsteleop.app.tune.cluster import RayExecutor
+    from dsteleop.app.tune.edges import widen
     from dsteleop.app.tune.holdout import HoldoutError
     from dsteleop.app.tune.space import out_of_domain
 
@@ -340,6 +384,7 @@ def run(args: argparse.Namespace) -> int:
         settings = new_settings(cmd.given)
         study = None
     holdout_seed = _holdout_seed(cmd, settings)
+    budget = _budget(cmd, settings)
     for line in out_of_domain(settings.space, settings.base):
         log.warning("tune: %s; trials that draw it will fail", line)
     show = sys.stderr.isatty() if cmd.progress is None else bool(cmd.progress)
@@ -348,51 +393,37 @@ def run(args: argparse.Namespace) -> int:
     executor = RayExecutor(cmd.address, cmd.workers)
     cluster_start_s = time.monotonic() - t0
     try:
-        if study is None:
-            study = driver.open_study(out, settings, resume=False)
-        requeued = driver.requeue_interrupted(study) if cmd.resume else 0
-        n_before = driver.counted(study)
-        limit = cmd.trials
-        if settings.sampler == "grid":
-            limit = min(limit, settings.grid_size)
-        todo = max(0, limit - n_before)
         via = cmd.sessions_via or ("path" if executor.local else "store")
-        log.info(
-            "tune: %s; %d trial(s) to run (%d done before%s), sampler %s, %s with %d CPUs, out %s",
-            settings.objective.statement(), todo, n_before,
-            f", {requeued} interrupted asked again" if requeued else "",
-            settings.sampler, "a local Ray cluster" if executor.local else cmd.address,
-            executor.capacity, out,
-        )  # fmt: skip
-        best_so_far = driver.best_of(driver.records(study, settings.space), settings.objective)
-        failed = 0
-
-        def on_trial(rec: TrialRecord) -> None:
-            nonlocal best_so_far, failed
-            failed += rec.state == "FAIL"
-            if driver.best_of([r for r in (best_so_far, rec) if r], settings.objective) is rec:
-                best_so_far = rec
-            parts = (
-                []
-                if best_so_far is None
-                else [f"best {best_so_far.value:.4g} (#{best_so_far.number})"]
-            )
-            if failed:
-                parts.append(f"{failed} failed")
-            status = ", ".join(parts)
-            bar.advance(1, status)
-
-        t1 = time.monotonic()
-        with Progress(todo, sys.stderr, show, "tune", "trials") as bar:
-            new = driver.run_trials(
-                study, settings, executor, todo, sessions_via=via, on_trial=on_trial
-            )
-        trials_wall_s = time.monotonic() - t1
-        recs = driver.records(study, settings.space)
-        best = driver.best_of(recs, settings.objective)
+        rounds: list[Round] = []
+        current = settings
+        for k in range(cmd.widen_edges + 1):
+            if k == 0:
+                study = study or driver.open_study(out, settings, resume=False)
+            else:
+                study = _round_study(round_dir(out, k), current, cmd.resume)
+            rnd = _campaign(cmd, k, current, study, executor, budget["trials"], via, show)
+            rounds.append(rnd)
+            if rnd.best is None:
+                break
+            widened, rnd.edges = widen(current.space, rnd.best.params, current.base)
+            if k == cmd.widen_edges or widened == current.space:
+                break
+            log.info(
+                "tune: the best of round %d is on an edge (%s); round %d searches %s",
+                k, "; ".join(e.describe() for e in rnd.edges), k + 1,
+                " ".join(d.spec for d in widened),
+            )  # fmt: skip
+            current = dataclasses.replace(current, space=widened)
+        final = rounds[-1]
+        # Edges of the final best that could have been widened were not: say why.
+        final.edges = [
+            e.with_status("off" if cmd.widen_edges == 0 else "rounds") if e.widenable else e
+            for e in final.edges
+        ]
+        recs, best = final.recs, final.best
         t2 = time.monotonic()
         try:
-            holdout = _holdout(cmd, settings, executor, best, holdout_seed, via, show)
+            holdout = _holdout(cmd, final.settings, executor, best, holdout_seed, via, show)
         except HoldoutError as exc:  # the search's results stand; say why there is no check
             log.warning("tune: %s", exc)
             holdout = {"error": str(exc)}
@@ -401,16 +432,22 @@ def run(args: argparse.Namespace) -> int:
     finally:
         executor.close()
 
-    files = _write(cmd, settings, recs, best, holdout, out)
+    files = _write(cmd, final.settings, recs, best, holdout, out, rounds)
+    n_new = sum(len(r.new) for r in rounds)
+    trials_wall_s = sum(r.wall_s for r in rounds)
     timing = {
         "wall_s": time.monotonic() - t_start,
         "cluster_start_s": cluster_start_s,
-        "trials_run": len(new),
+        "trials_run": n_new,
         "trials_wall_s": trials_wall_s,
-        "trials_per_minute": 60.0 * len(new) / trials_wall_s if new and trials_wall_s > 0 else None,
+        "trials_per_minute": 60.0 * n_new / trials_wall_s if n_new and trials_wall_s > 0 else None,
         "holdout_s": holdout_s,
     }
-    summary = _summary(cmd, settings, recs, best, holdout, cluster, timing, files, out)
+    summary = _summary(cmd, final.settings, recs, best, holdout, cluster, timing, files, out)
+    summary["budget"] = budget
+    summary["rounds"] = [r.to_dict(out) for r in rounds]
+    summary["edges"] = [e.to_dict() for e in final.edges]
+    summary["widen_edges"] = cmd.widen_edges
     (out / "summary.json").write_text(json.dumps(_json(summary), indent=2) + "\n")
     from dsteleop.app.tune.report import markdown
 
@@ -421,6 +458,134 @@ def run(args: argparse.Namespace) -> int:
         first = next((r.error for r in recs if r.error), "")
         raise InputError(f"every trial failed, the first with {first} (trials.csv has each)")
     return 0
+
+
+def round_dir(out: Path, k: int) -> Path:
+    """Where campaign `k` is stored: DIR for the first, DIR/widen-K for widening round K."""
+    return out if k == 0 else out / f"widen-{k}"
+
+
+@dataclass
+class Round:
+    """One campaign: a fresh study over one search space with the whole budget.
+
+    Attributes:
+        number: 0 for the first campaign, K for widening round K.
+        settings: its settings (the first's with the widened space).
+        recs: its finished trials.
+        best: its best trial (None: none feasible).
+        new: the trials this run ran.
+        wall_s: their wall time [s].
+        edges: the best's edges (app/tune/edges.py).
+    """
+
+    number: int
+    settings: TuneSettings
+    recs: list[TrialRecord]
+    best: TrialRecord | None
+    new: list[TrialRecord]
+    wall_s: float
+    edges: list[Edge] = field(default_factory=list)
+
+    def to_dict(self, out: Path) -> dict[str, Any]:
+        return {
+            "round": self.number,
+            "folder": str(round_dir(out, self.number)),
+            "space": [d.spec for d in self.settings.space],
+            "trials": len(self.recs),
+            "complete": sum(r.state == "COMPLETE" for r in self.recs),
+            "best": None
+            if self.best is None
+            else {"number": self.best.number, "value": self.best.value, "params": self.best.params},
+            "edges": [e.to_dict() for e in self.edges],
+        }
+
+
+def _budget(cmd: TuneCommand, settings: TuneSettings) -> dict[str, Any]:
+    """A campaign's trials and the rule that gave them (every widening round has the same)."""
+    n = len(settings.space)
+    if cmd.trials_per_param is not None:
+        k = cmd.trials_per_param
+        rule = f"--trials-per-param {k}: {k} trials per searched parameter x {n} = {k * n}"
+        return {"rule": rule, "per_param": k, "params": n, "trials": k * n}
+    rule = f"--trials {cmd.trials}: a fixed number, whatever the {n} searched parameter(s)"
+    return {"rule": rule, "per_param": None, "params": n, "trials": cmd.trials}
+
+
+def _round_study(folder: Path, settings: TuneSettings, resume: bool) -> optuna.Study:
+    """The study of a widening round: a new one, or with `resume` the stored one, which must
+    search the space the previous round's best widens to now."""
+    from dsteleop.app.tune import driver
+
+    if not (folder / driver.STORAGE_FILE).exists():
+        folder.mkdir(exist_ok=True)
+        return driver.open_study(folder, settings, resume=False)
+    if not resume:
+        raise InputError(f"{folder} holds a tuning study already: choose another --out")
+    study = driver.open_study(folder, None, resume=True)
+    stored = driver.stored_settings(study)
+    if stored.to_dict() != settings.to_dict():
+        raise ConfigError(
+            f"--resume: {folder.name} searched {' '.join(d.spec for d in stored.space)}, but the "
+            f"previous round's best now widens the space to "
+            f"{' '.join(d.spec for d in settings.space)}; choose another --out"
+        )
+    return study
+
+
+def _campaign(
+    cmd: TuneCommand,
+    number: int,
+    settings: TuneSettings,
+    study: optuna.Study,
+    executor: RayExecutor,
+    trials: int,
+    via: Literal["path", "store"],
+    show: bool,
+) -> Round:
+    """Run a campaign's remaining trials (of `trials` in all) and collect its results."""
+    from dsteleop.app.tune import driver
+
+    requeued = driver.requeue_interrupted(study) if cmd.resume else 0
+    n_before = driver.counted(study)
+    limit = trials
+    if settings.sampler == "grid":
+        limit = min(limit, settings.grid_size)
+    todo = max(0, limit - n_before)
+    log.info(
+        "tune: %s%s; %d trial(s) to run (%d done before%s), sampler %s, %s with %d CPUs, out %s",
+        settings.objective.statement(),
+        f" (widening round {number}: {' '.join(d.spec for d in settings.space)})"
+        if number else "",
+        todo, n_before,
+        f", {requeued} interrupted asked again" if requeued else "",
+        settings.sampler, "a local Ray cluster" if executor.local else cmd.address,
+        executor.capacity, round_dir(cmd.out, number),
+    )  # fmt: skip
+    best_so_far = driver.best_of(driver.records(study, settings.space), settings.objective)
+    failed = 0
+
+    def on_trial(rec: TrialRecord) -> None:
+        nonlocal best_so_far, failed
+        failed += rec.state == "FAIL"
+        if driver.best_of([r for r in (best_so_far, rec) if r], settings.objective) is rec:
+            best_so_far = rec
+        parts = (
+            [] if best_so_far is None else [f"best {best_so_far.value:.4g} (#{best_so_far.number})"]
+        )
+        if failed:
+            parts.append(f"{failed} failed")
+        bar.advance(1, ", ".join(parts))
+
+    t1 = time.monotonic()
+    label = "tune" if number == 0 else f"widen {number}"
+    with Progress(todo, sys.stderr, show, label, "trials") as bar:
+        new = driver.run_trials(
+            study, settings, executor, todo, sessions_via=via, on_trial=on_trial
+        )
+    wall_s = time.monotonic() - t1
+    recs = driver.records(study, settings.space)
+    return Round(number, settings, recs, driver.best_of(recs, settings.objective), new, wall_s)
 
 
 def _holdout_seed(cmd: TuneCommand, settings: TuneSettings) -> int:
@@ -457,7 +622,7 @@ def _holdout(
     n_tasks = 0
     batch = None
     if cmd.holdout_trajectories > 0:
-        batch = StudyBatch(cmd.holdout_trajectories, seed, settings.mode)
+        batch = StudyBatch(cmd.holdout_trajectories, seed, settings.mode, settings.world)
         n_tasks += holdout.tasks(batch, len(configs), executor.capacity)
     n_tasks += 4 * len(cmd.holdout_sessions)
     with Progress(n_tasks, sys.stderr, show, "held-out", "tasks") as bar:
@@ -491,11 +656,20 @@ def _write(
     best: TrialRecord | None,
     holdout: dict[str, Any] | None,
     out: Path,
+    rounds: list[Round],
 ) -> list[str]:
+    """The final round's trials.csv, best.json and figures in DIR; with widening rounds,
+    each round's trials too (the first's in DIR/trials-round-0.csv, round K's in
+    DIR/widen-K/trials.csv)."""
     from dsteleop.app.tune import figures, report
 
     files = ["trials.csv"]
     report.write_trials_csv(settings, recs, out / "trials.csv")
+    if len(rounds) > 1:
+        for r in rounds:
+            name = "trials-round-0.csv" if r.number == 0 else f"widen-{r.number}/trials.csv"
+            report.write_trials_csv(r.settings, r.recs, out / name)
+            files.append(name)
     best_path = out / "best.json"
     if best is not None:
         best_path.write_text(
@@ -510,6 +684,7 @@ def _write(
         if heat:
             files.append(heat)
     files += ["summary.md", "summary.json", "study.journal"]
+    files += [f"widen-{r.number}/study.journal" for r in rounds if r.number]
     return files
 
 
@@ -525,6 +700,7 @@ def _summary(
     out: Path,
 ) -> dict[str, Any]:
     from dsteleop.app.tune.report import SUMMARY_SCHEMA, power
+    from dsteleop.app.tune.trial import describe_world
     from dsteleop.arbitration import ArbitrationConfig
 
     errors: dict[str, list[int]] = defaultdict(list)
@@ -536,6 +712,7 @@ def _summary(
         "out": str(out),
         "settings": settings.to_dict(),
         "base_is_default": settings.base == ArbitrationConfig(),
+        "world": {"overrides": dict(settings.world), "statement": describe_world(settings.world)},
         "objective": {**settings.objective.to_dict(), "sources": list(settings.objective.sources)},
         "trials": {
             "finished": len(recs),
@@ -543,7 +720,7 @@ def _summary(
             "failed": sum(r.state == "FAIL" for r in recs),
             "feasible": sum(r.feasible for r in recs),
             "errors": dict(errors),
-            "requested": cmd.trials,
+            "requested": _budget(cmd, settings)["trials"],
             "grid_size": settings.grid_size if settings.sampler == "grid" else None,
         },
         "best": None
@@ -579,6 +756,13 @@ def _brief(summary: dict[str, Any]) -> dict[str, Any]:
         "out": summary["out"],
         "objective": summary["objective"]["statement"],
         "trials": {k: summary["trials"][k] for k in ("finished", "complete", "failed")},
+        "world": summary["world"]["statement"],
+        "budget": summary["budget"]["rule"],
+        "rounds": len(summary["rounds"]),
+        "edges": [
+            {k: e[k] for k in ("name", "side", "value", "end", "status", "new_end")}
+            for e in summary["edges"]
+        ],
         "best": None
         if best is None
         else {"number": best["number"], "value": best["value"], "params": best["params"]},

@@ -40,6 +40,7 @@ from dsteleop.app.tune.space import Dimension, Value, as_values, parse_space
 from dsteleop.app.tune.trial import (
     SessionRef,
     StudyBatch,
+    World,
     pack_session,
     paired,
     session_task,
@@ -131,6 +132,8 @@ class TuneSettings:
         sessions: the replayed sessions' folders (absolute paths).
         base: the configuration the searched parameters replace fields of (the defaults,
             unless `--config`/`--param` say otherwise); the held-out comparison's baseline.
+        world: the study's world (`StudyBatch.world`: the tuning batch's and the held-out
+            trajectories'; empty: the default world).
     """
 
     objective: Objective
@@ -141,6 +144,7 @@ class TuneSettings:
     batch: StudyBatch | None = None
     sessions: tuple[str, ...] = ()
     base: ArbitrationConfig = field(default_factory=ArbitrationConfig)
+    world: World = ()
 
     def __post_init__(self) -> None:
         if self.sampler not in SAMPLERS:
@@ -161,6 +165,8 @@ class TuneSettings:
             )
         if self.batch is not None and self.batch.mode != self.objective.mode:
             raise ConfigError("the study's tuning batch is of another mode than the objective's")
+        if self.batch is not None and self.batch.world != self.world:
+            raise ConfigError("the study's tuning batch is of another world than the settings'")
 
     @property
     def mode(self) -> str:
@@ -191,6 +197,7 @@ class TuneSettings:
             "study_seed": None if self.batch is None else self.batch.seed,
             "sessions": list(self.sessions),
             "base": self.base.to_dict(),
+            "world": dict(self.world),
         }
 
     @classmethod
@@ -199,8 +206,9 @@ class TuneSettings:
             raise InputError(f"a tuning study of schema {d.get('schema')!r}, not {SETTINGS_SCHEMA}")
         batch = None
         mode = str(d.get("mode", "DS"))  # studies made before modes were plug-ins tuned DS
+        world: World = tuple(sorted(dict(d.get("world") or {}).items()))  # none: the default
         if d.get("trajectories") is not None:
-            batch = StudyBatch(int(d["trajectories"]), int(d["study_seed"]), mode)
+            batch = StudyBatch(int(d["trajectories"]), int(d["study_seed"]), mode, world)
         return cls(
             objective=Objective(d["objective"], d["metric"], bool(d["constrained"]), mode),
             space=parse_space(d["space"], mode),
@@ -210,6 +218,7 @@ class TuneSettings:
             batch=batch,
             sessions=tuple(d.get("sessions", ())),
             base=ArbitrationConfig.from_dict(d["base"]),
+            world=world,
         )
 
 

@@ -24,6 +24,7 @@ from typing import Any
 
 from dsteleop.app.tune.driver import TrialRecord, TuneSettings
 from dsteleop.app.tune.objective import LABELS, MODE_METRICS
+from dsteleop.app.tune.trial import describe_world
 
 BEST_SCHEMA = "dsteleop.tune_best/1"
 SUMMARY_SCHEMA = "dsteleop.tune_summary/1"
@@ -98,13 +99,16 @@ def best_json(
             "agreement": g["agreement"],
             "success": g["success"],
         }
+    world = describe_world(settings.world)
     return {
         "schema": BEST_SCHEMA,
         "arbitration": settings.arbitration(best.params),
         "objective": objective,
+        "world": {"overrides": dict(settings.world), "statement": world},
         "note": (
-            f"written by dsteleop tune into {out}; use it with "
-            f"dsteleop run|serve|sim --config {out / 'best.json'}"
+            f"written by dsteleop tune into {out}, tuned in {world}; use it with "
+            f"dsteleop run|serve|sim --config {out / 'best.json'} (sim: with the same world "
+            "options to score the world it was tuned in)"
         ),
     }
 
@@ -160,7 +164,8 @@ def markdown(summary: Mapping[str, Any]) -> str:
     lines = [f"# dsteleop tune: {summary['out']}", ""]
     lines += ["## What was searched", ""]
     lines.append(
-        f"{summary['trials']['finished']} trials ({summary['trials']['complete']} complete, "
+        ("The final campaign: " if len(summary.get("rounds") or []) > 1 else "")
+        + f"{summary['trials']['finished']} trials ({summary['trials']['complete']} complete, "
         f"{summary['trials']['failed']} failed), sampler `{st['sampler']}` with seed "
         f"{st['seed']}"
         + (f", {st['grid_points']} values per range" if st["sampler"] == "grid" else "")
@@ -172,11 +177,28 @@ def markdown(summary: Mapping[str, Any]) -> str:
         )
         + f" ({summary['cluster']['cpus']} CPUs)."
     )
+    budget = summary.get("budget")
+    if budget:
+        lines.append(
+            f"The budget: {budget['trials']} trials per campaign ({budget['rule']}); a "
+            "comparison of modes is fair when each gets the same trials per parameter "
+            "(docs/tune.md)."
+        )
     lines.append("")
-    lines += ["| parameter | searched over | base value |", "| --- | --- | --- |"]
-    for spec in st["space"]:
+    rounds = summary.get("rounds") or []
+    first = rounds[0]["space"] if rounds else st["space"]
+    widened = len(rounds) > 1
+    header = "| parameter | searched over | base value |"
+    if widened:
+        header = "| parameter | first searched over | finally searched over | base value |"
+    lines += [header, "| --- " * (header.count("|") - 1) + "|"]
+    for spec, first_spec in zip(st["space"], first):
         name, _, rng = spec.partition("=")
-        lines.append(f"| `{name}` | `{rng}` | {_fmt(st['base'][name], 4)} |")
+        cells = [f"`{name}`", f"`{first_spec.partition('=')[2]}`"]
+        if widened:
+            cells.append(f"`{rng}`")
+        cells.append(_fmt(st["base"][name], 4))
+        lines.append("| " + " | ".join(cells) + " |")
     lines.append("")
     src = []
     if st["trajectories"] is not None:
@@ -190,6 +212,12 @@ def markdown(summary: Mapping[str, Any]) -> str:
             "fresh simulated robot: " + ", ".join(f"`{Path(p).name}`" for p in st["sessions"])
         )
     lines.append("Each trial evaluated one configuration on " + "; and ".join(src) + ".")
+    world = summary.get("world")
+    if world and st["trajectories"] is not None:
+        lines.append(
+            f"The study ran in {world['statement']}, the tuning trajectories and the held-out "
+            "ones alike (`dsteleop sim` scores the same world with the same options)."
+        )
     if summary.get("base_is_default"):
         lines.append("The base configuration is the default one (docs/METHOD.md §6).")
     else:
@@ -214,6 +242,7 @@ def markdown(summary: Mapping[str, Any]) -> str:
             lines.append(f"| `{name}` | {_fmt(v, 4)} | {_fmt(st['base'][name], 4)} |")
         lines += ["", "On the tuning data:", ""]
         lines += _mode_table(best["metrics"], summary["objective"]["sources"], mode)
+    lines += _edges_md(summary)
     lines += _holdout_md(summary.get("holdout"), mode)
     pw = summary.get("power") or {}
     if pw:
@@ -247,6 +276,54 @@ def markdown(summary: Mapping[str, Any]) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _edges_md(summary: Mapping[str, Any]) -> list[str]:
+    """The campaigns (the first and each widening round) and the final best's edges."""
+    rounds = summary.get("rounds")
+    if rounds is None:
+        return []
+    out = ["", "## Edges of the search space", ""]
+    n = summary.get("widen_edges", 0)
+    out.append(
+        "A best value within 5 % of its range's width (log width for a log range) of a range "
+        "end is on an edge: the optimum may lie beyond it. "
+        + (
+            f"With up to {n} widening round(s), such a range is widened on that side (a log "
+            "range by a factor of 4, a linear one by half its width, clipped to the field's "
+            "domain) and a fresh campaign with the same budget searches the widened space; "
+            "the best above is the last campaign's."
+            if n
+            else "Widening was off (--widen-edges 0)."
+        )
+    )
+    if len(rounds) > 1:
+        out += ["", "| campaign | searched | trials | best value | edges of its best |"]
+        out.append("| --- | --- | --- | --- | --- |")
+        for r in rounds:
+            name = "first" if r["round"] == 0 else f"widening round {r['round']}"
+            best = r["best"]
+            found = (
+                "; ".join(f"{e['name']} {e['side']} ({e['status']})" for e in r["edges"]) or "none"
+            )
+            out.append(
+                f"| {name} | `{' '.join(r['space'])}` | {r['trials']} | "
+                f"{_fmt(None if best is None else best['value'], 4)} | {found} |"
+            )
+    edges = summary.get("edges") or []
+    out.append("")
+    if not edges:
+        out.append("No value of the final best is on an edge of its range.")
+        return out
+    out += ["The final best's values on an edge:", ""]
+    out += ["| parameter | best | range end | distance | what was done |"]
+    out.append("| --- | --- | --- | --- | --- |")
+    for e in edges:
+        out.append(
+            f"| `{e['name']}` | {_fmt(e['value'], 4)} | {e['side']}: {_fmt(e['end'], 4)} | "
+            f"{100 * e['distance']:.1f} % | {e['status_text']} |"
+        )
+    return out
 
 
 def _mode_table(metrics: Mapping[str, float], sources: Sequence[str], tuned: str) -> list[str]:

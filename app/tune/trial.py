@@ -20,6 +20,7 @@ temporary folder.
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import tempfile
 import time
@@ -31,7 +32,7 @@ from typing import Any
 from dsteleop.app.study.core import ChunkResult, SimConfig, headline, run_chunk
 from dsteleop.app.tune.objective import MODE_METRICS, key
 from dsteleop.arbitration import ArbitrationConfig, Mode
-from dsteleop.errors import InputError
+from dsteleop.errors import ConfigError, InputError
 
 #: The files of a session a replay reads (no video: replays do not re-track).
 SESSION_FILES: tuple[str, ...] = ("meta.json", "ticks.jsonl")
@@ -54,21 +55,88 @@ class StudyBatch:
         trajectories: how many: indices 0 .. trajectories - 1.
         seed: the study's master seed; trajectory n is seeded by (seed, n) alone.
         mode: the tuned mode (paired with S).
+        world: the study's world, `SimConfig` overrides (`world_of`; empty: the default).
     """
 
     trajectories: int
     seed: int
     mode: str = "DS"
+    world: tuple[tuple[str, Any], ...] = ()
 
     def config(self, arbitration: ArbitrationConfig) -> SimConfig:
-        """The study of this batch under `arbitration`, S and the mode, no paths kept."""
+        """The study of this batch under `arbitration`, S and the mode, in its world, no
+        paths kept."""
         return SimConfig(
             trajectories=self.trajectories,
             seed=self.seed,
             modes=paired(self.mode),
             max_paths=0,
             arbitration=arbitration,
+            **sim_overrides(dict(self.world)),
         )
+
+
+#: The study's world: `SimConfig` field overrides as JSON values (app/cli/world_options.py's
+#: `world_overrides`, a dataclass field such as `world` as a dict of its changed fields).
+World = tuple[tuple[str, Any], ...]
+
+
+def world_of(overrides: Mapping[str, Any]) -> World:
+    """`SimConfig` field overrides (`world_overrides`) as a `StudyBatch.world`: sorted pairs of
+    JSON values, a dataclass as the dict of the fields it changes from the study's default
+    (so the stored settings name only what the options set)."""
+    default = SimConfig()
+    out: list[tuple[str, Any]] = []
+    for name, value in sorted(overrides.items()):
+        if not hasattr(default, name):
+            raise ConfigError(f"the study has no setting {name!r}")
+        v = value
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            base = getattr(default, name)
+            v = {
+                f.name: _plain(getattr(value, f.name))
+                for f in dataclasses.fields(value)
+                if getattr(value, f.name) != getattr(base, f.name)
+            }
+        out.append((name, _plain(v)))
+    return tuple(out)
+
+
+def sim_overrides(world: Mapping[str, Any]) -> dict[str, Any]:
+    """`world_of`'s inverse: the `SimConfig` field overrides (a dict of a dataclass field
+    replaces those fields of the study's default; lists become tuples again)."""
+    default = SimConfig()
+    out: dict[str, Any] = {}
+    for name, v in world.items():
+        base = getattr(default, name, None)
+        if dataclasses.is_dataclass(base) and isinstance(v, dict):
+            out[name] = dataclasses.replace(base, **{k: _tuple(x) for k, x in v.items()})  # type: ignore[type-var]
+        else:
+            out[name] = _tuple(v)
+    return out
+
+
+def describe_world(world: World) -> str:
+    """The world in words: the study's default, or the settings that differ from it."""
+    if not world:
+        return "the study's default world (docs/operator.md)"
+    parts = []
+    for name, v in world:
+        if isinstance(v, dict):
+            parts += [f"{name}.{k} = {json.dumps(x)}" for k, x in v.items()]
+        else:
+            parts.append(f"{name} = {json.dumps(v)}")
+    return "the study's world with " + ", ".join(parts)
+
+
+def _plain(v: Any) -> Any:
+    if isinstance(v, tuple):
+        return [_plain(x) for x in v]
+    return v
+
+
+def _tuple(v: Any) -> Any:
+    return tuple(_tuple(x) for x in v) if isinstance(v, list) else v
 
 
 def study_chunk(
