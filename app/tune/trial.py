@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from dsteleop.app.study.core import ChunkResult, SimConfig, headline, run_chunk
+from dsteleop.app.study.grasps import Grasps
 from dsteleop.app.tune.objective import MODE_METRICS, key
 from dsteleop.arbitration import ArbitrationConfig, Mode
 from dsteleop.errors import ConfigError, InputError
@@ -80,6 +81,9 @@ class StudyBatch:
 #: `world_overrides`, a dataclass field such as `world` as a dict of its changed fields).
 World = tuple[tuple[str, Any], ...]
 
+#: `SimConfig` settings that are None in the default world, by the class they hold.
+OPTIONAL_DATACLASSES: dict[str, type] = {"grasps": Grasps}
+
 
 def world_of(overrides: Mapping[str, Any]) -> World:
     """`SimConfig` field overrides (`world_overrides`) as a `StudyBatch.world`: sorted pairs of
@@ -96,7 +100,7 @@ def world_of(overrides: Mapping[str, Any]) -> World:
             v = {
                 f.name: _plain(getattr(value, f.name))
                 for f in dataclasses.fields(value)
-                if getattr(value, f.name) != getattr(base, f.name)
+                if base is None or getattr(value, f.name) != getattr(base, f.name)
             }
         out.append((name, _plain(v)))
     return tuple(out)
@@ -109,7 +113,10 @@ def sim_overrides(world: Mapping[str, Any]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for name, v in world.items():
         base = getattr(default, name, None)
-        if dataclasses.is_dataclass(base) and isinstance(v, dict):
+        if base is None and name in OPTIONAL_DATACLASSES and isinstance(v, dict):
+            # A setting the default world does not have (the disagreement world's grasps).
+            out[name] = OPTIONAL_DATACLASSES[name](**{k: _tuple(x) for k, x in v.items()})
+        elif dataclasses.is_dataclass(base) and isinstance(v, dict):
             out[name] = dataclasses.replace(base, **{k: _tuple(x) for k, x in v.items()})  # type: ignore[type-var]
         else:
             out[name] = _tuple(v)
