@@ -1,4 +1,5 @@
-"""The one error family that reaches the user as one clear line (exit code 2, no traceback).
+"""The one error family that reaches the user as one clear line (exit code 2, no traceback;
+3 for a lost robot).
 
     DsteleopError        base: the CLI catches it, prints its message and exits 2
       ConfigError        a setting or hyper-parameter out of its domain (the message names it)
@@ -6,6 +7,8 @@
                          does not open, a malformed session, a port in use
         ModelFileError   the hand model shipped in the package is missing or not the file
                          its sha256 names (a broken install)
+      RobotLostError     the robot stopped answering during a run (its link's far end died):
+                         not bad input, so exit code 3, for a script to tell it apart
 
 Anything else that escapes is a bug and keeps its traceback.
 """
@@ -13,6 +16,9 @@ Anything else that escapes is a bug and keeps its traceback.
 
 class DsteleopError(Exception):
     """Bad input or environment: the message is shown to the user as is, without a traceback."""
+
+    #: The command's exit code when this error ends it.
+    exit_code = 2
 
 
 class ConfigError(DsteleopError, ValueError):
@@ -25,3 +31,9 @@ class InputError(DsteleopError):
 
 class ModelFileError(InputError):
     """The model file shipped in the package is missing or does not match its sha256."""
+
+
+class RobotLostError(DsteleopError):
+    """The robot was lost (no state) for longer than allowed during a run: exit code 3."""
+
+    exit_code = 3

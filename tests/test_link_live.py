@@ -265,54 +265,6 @@ def test_unreachable_endpoint_and_port_in_use_are_one_line_exit_2(tmp_path):
     assert len(errors) == 1 and f"cannot open a Zenoh session on {ep}" in errors[0], r.stderr
 
 
-def test_a_message_of_the_wrong_type_is_one_line_exit_2(tmp_path):
-    port = free_port()
-    cfg = link_file(tmp_path, port)
-    far = Far(cfg)
-    config = LinkConfig()
-    session = open_session(Endpoints(connect=(f"tcp/127.0.0.1:{port}",)), 5.0, "test")
-    # a JointState on the pose command topic (its own, correct key expression)
-    wrong = Topic(session, 0, config.topics.command_pose, ros.JOINT_STATE)
-    time.sleep(0.5)
-    try:
-        stamp = time.time_ns()
-        wrong.put(ros.encode_joints(("a",), np.zeros(1), stamp), 1, stamp)
-        far.proc.wait(timeout=30)
-    finally:
-        wrong.close()
-        session.close()
-        if far.proc.poll() is None:
-            far.kill()
-    assert far.proc.returncode == 2
-    text = "".join(far.lines)
-    assert "Traceback" not in text
-    errors = [ln for ln in far.lines if "error:" in ln]
-    assert errors == [
-        "dsteleop robot-sim: error: robot link: topic /dsteleop/palm_pose_command carries "
-        "sensor_msgs::msg::dds_::JointState_, expected geometry_msgs::msg::dds_::PoseStamped_ "
-        "(geometry_msgs/msg/PoseStamped)\n"
-    ], text
-
-    # the near end: a PoseStamped on the joints topic, from a real session it connects to
-    ep = f"tcp/127.0.0.1:{free_port()}"
-    listener = open_session(Endpoints(listen=(ep,)), 5.0, "test")
-    robot = ZenohRobot(LinkConfig(near=Endpoints(connect=(ep,))))
-    try:
-        out = Topic(listener, 0, config.topics.state_joints, ros.POSE_STAMPED)
-        time.sleep(0.5)
-        stamp = time.time_ns()
-        out.put(ros.encode_pose(np.zeros(3), np.eye(3), "base", stamp), 1, stamp)
-        t0 = time.monotonic()
-        with pytest.raises(InputError, match="carries geometry_msgs::msg::dds_::PoseStamped_"):
-            while time.monotonic() - t0 < 5.0:
-                robot.state(0.0)
-                time.sleep(0.01)
-        out.close()
-    finally:
-        robot.close()
-        listener.close()
-
-
 def test_run_drives_the_demo_over_the_link(tmp_path):
     cfg = link_file(tmp_path, free_port())
     far = Far(cfg)
@@ -578,3 +530,283 @@ def test_each_token_goes_with_its_entity_while_the_session_stays_open():
     finally:
         session.close()
         observer.close()
+
+
+def _router(port: int) -> Any:
+    """A Zenoh router on 127.0.0.1:port, in this process (zenoh itself in router mode, as
+    `zenohd` runs it; no scouting)."""
+    import zenoh
+
+    c = zenoh.Config()
+    c.insert_json5("mode", '"router"')
+    c.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    c.insert_json5("scouting/multicast/enabled", "false")
+    return zenoh.open(c)
+
+
+def test_both_ends_behind_a_router_as_docs_link_md_says(tmp_path):
+    """Both ends connect to a Zenoh router and listen nowhere (`listen: []`, docs/link.md's
+    setup for a ROS 2 system): the state and the commands flow through the router, and a
+    third client of the router sees both nodes' liveliness tokens (issue 33, problem 6: as
+    peers that do not listen, nothing flowed)."""
+    from dsteleop.app.link.far import FAR_NODE
+    from dsteleop.app.link.near import NEAR_NODE
+
+    port = free_port()
+    ep = f"tcp/127.0.0.1:{port}"
+    router = _router(port)
+    cfg = tmp_path / "link.json"
+    cfg.write_text(
+        json.dumps(
+            {
+                "far": {"listen": [], "connect": [ep]},
+                "near": {"listen": [], "connect": [ep]},
+                "connect_timeout_s": 10.0,
+            }
+        )
+    )
+    far = Far(cfg)
+    robot = None
+    third = open_session(Endpoints(connect=(ep,)), 5.0, "third")
+    try:
+        robot = ZenohRobot(read_link_config(cfg))
+        t0 = time.monotonic()
+        st = robot.reset(0.0)  # the far end's state came through the router
+        n0 = robot._pose_in.count
+        drive(robot, st.X, 2.0, t0)
+        assert robot.link_status(time.monotonic() - t0) == ""
+        # about 30 states a second kept coming
+        assert robot._pose_in.count - n0 > 0.5 * 30 * 2.0
+        zid = str(robot.node.zid)
+        keys = _wait_tokens(
+            third,
+            lambda k: sum(x.split("/")[5] == "NN" for x in k) >= 2 and len(k) >= 12,
+        )
+        nodes = {k.split("/")[-1] for k in keys if k.split("/")[5] == "NN"}
+        assert nodes == {FAR_NODE.name, NEAR_NODE.name}, keys
+        assert len(keys) == 12  # each end: its node, 2 + 3 publishers and subscriptions
+        assert {k for k in keys if k.split("/")[2] == zid} >= {robot.node.key}
+        robot.close()
+        robot = None
+        summary = far.terminate()
+    finally:
+        if robot is not None:
+            robot.close()
+        third.close()
+        if far.proc.poll() is None:
+            far.kill()
+        router.close()
+    # the commands went through the router too (about 60 sent; two that arrive together count
+    # as one applied, the newest wins: none was dropped as stale or out of order)
+    assert summary["applied"] > 0.25 * 30 * 2.0, summary
+    assert summary["dropped_stale"] == summary["dropped_out_of_order"] == 0, summary
+
+
+def _stray_publishers(session: Any, topic: str) -> list[tuple[str, Any]]:
+    """One stray message of each kind on `topic` (a PoseStamped topic): (its drop reason,
+    a function that sends it)."""
+    ts = ros.typestore()
+    string = "std_msgs/msg/String"
+    wrong = Topic(session, 0, topic, ros.JOINT_STATE)
+    text = Topic(session, 0, topic, string)
+    pose = Topic(session, 0, topic, ros.POSE_STAMPED)
+    p, R = np.array([0.58, 0.30, 0.50]), np.diag([-1.0, 1.0, -1.0])
+    seq = iter(range(10**6, 2 * 10**6))
+
+    def now() -> int:
+        return time.time_ns()
+
+    def joint_state() -> None:
+        s = now()
+        wrong.put(ros.encode_joints(("a",), np.zeros(1), s), next(seq), s)
+
+    def std_string() -> None:
+        s = now()
+        text.put(bytes(ts.serialize_cdr(ts.types[string](data="hello"), string)), next(seq), s)
+
+    def world_frame() -> None:
+        s = now()
+        pose.put(ros.encode_pose(p, R, "world", s), next(seq), s)
+
+    def cut_cdr() -> None:
+        s = now()
+        data = ros.encode_pose(p, R, "base", s)
+        pose.put(data[: len(data) // 2], next(seq), s)
+
+    def no_attachment() -> None:
+        session.put(pose.key, ros.encode_pose(p, R, "base", now()))
+
+    return [
+        ("wrong_type", joint_state),
+        ("wrong_type", std_string),
+        ("refused", world_frame),
+        ("bad_payload", cut_cdr),
+        ("bad_attachment", no_attachment),
+    ]
+
+
+def test_stray_messages_at_the_far_end_are_dropped_counted_and_logged(tmp_path):
+    """A JointState and a std_msgs/String on the pose command topic, a pose in frame
+    "world", a cut CDR buffer and a message without its attachment: each dropped, counted by
+    reason and logged (the first of each reason; later ones within 5 s only counted), and
+    robot-sim goes on applying the good commands between them (issue 33, problem 7)."""
+    port = free_port()
+    cfg = link_file(tmp_path, port)
+    far = Far(cfg)
+    config = LinkConfig()
+    session = open_session(Endpoints(connect=(f"tcp/127.0.0.1:{port}",)), 5.0, "stray")
+    good = Topic(session, 0, config.topics.command_pose, ros.POSE_STAMPED)
+    strays = _stray_publishers(session, config.topics.command_pose)
+    p, R = np.array([0.58, 0.30, 0.50]), np.diag([-1.0, 1.0, -1.0])
+    time.sleep(0.5)  # the subscriptions reach the far end
+    rounds = 4
+    try:
+        seq = 0
+        for _ in range(rounds):
+            for _, send in strays:
+                send()
+                seq += 1
+                stamp = time.time_ns()
+                good.put(ros.encode_pose(p, R, "base", stamp), seq, stamp)
+                time.sleep(0.03)
+        time.sleep(0.3)
+        assert far.proc.poll() is None, "".join(far.lines)  # still running
+        summary = far.terminate()
+    finally:
+        good.close()
+        session.close()
+        if far.proc.poll() is None:
+            far.kill()
+    dropped = summary["dropped_stray"][config.topics.command_pose]
+    assert dropped == {
+        "wrong_type": 2 * rounds,
+        "bad_attachment": rounds,
+        "bad_payload": rounds,
+        "refused": rounds,
+    }
+    assert sum(summary["dropped_stray"][config.topics.command_fingers].values()) == 0
+    assert summary["applied"] == rounds * len(strays)  # every good command, none of the rest
+    logged = [ln for ln in far.lines if ": dropped (" in ln]
+    assert len(logged) == 4, logged  # one per reason: the rest came within 5 s
+    assert any("carries sensor_msgs::msg::dds_::JointState_" in ln for ln in logged), logged
+    assert any("pose in frame 'world', expected 'base'" in ln for ln in logged), logged
+    assert "Traceback" not in "".join(far.lines)
+
+
+def test_stray_messages_at_the_near_end_are_dropped_and_counted(tmp_path):
+    """The same strays on the palm pose state topic, and a JointState without the robot's
+    joints on the joints topic, while robot-sim publishes good states: the near end drops
+    and counts them, its state stays the far end's (frame "base", fresh), never an error."""
+    port = free_port()
+    cfg = link_file(tmp_path, port)
+    far = Far(cfg)
+    config = LinkConfig()
+    robot = ZenohRobot(read_link_config(cfg))
+    session = open_session(Endpoints(connect=(f"tcp/127.0.0.1:{port}",)), 5.0, "stray")
+    strays = _stray_publishers(session, config.topics.state_pose)
+    joints = Topic(session, 0, config.topics.state_joints, ros.JOINT_STATE)
+    try:
+        t0 = time.monotonic()
+        st = robot.reset(0.0)
+        time.sleep(0.5)  # the stray publishers reach the near end (through the far end)
+        for k in range(3):
+            for _, send in strays:
+                send()
+                stamp = time.time_ns()
+                joints.put(ros.encode_joints(("elbow",), np.zeros(1), stamp), 10**6 + k, stamp)
+                now = time.monotonic() - t0
+                s = robot.state(now)
+                assert s is not None and np.linalg.norm(s.X.position - st.X.position) < 0.01
+                assert robot.link_status(now) == ""
+                time.sleep(0.03)
+        time.sleep(0.2)
+        dropped = robot.dropped
+    finally:
+        joints.close()
+        session.close()
+        robot.close()
+        far.terminate()
+    assert dropped[config.topics.state_pose] == {
+        "wrong_type": 6,
+        "bad_attachment": 3,
+        "bad_payload": 3,
+        "refused": 3,
+    }
+    assert dropped[config.topics.state_joints]["refused"] == 15
+
+
+def test_a_dead_far_end_ends_run_after_robot_lost_s(tmp_path):
+    """`run --robot zenoh:` with the far end killed: the loop halts at once (lost robot),
+    and after `--robot-lost-s` the run ends with exit code 3, one error line, the summary
+    (`stopped_by: robot-lost`) and its recording closed complete (issue 33, problem 8)."""
+    from dsteleop.app.session.reader import read_session
+
+    cfg = link_file(tmp_path, free_port())
+    far = Far(cfg)
+    rec = tmp_path / "rec"
+    run = subprocess.Popen(
+        [*CLI, "run", "--robot", f"zenoh:{cfg}", "--robot-lost-s", "2", "--record", str(rec)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        t_end = time.monotonic() + 120
+        while not any("commands arrive; moving" in ln for ln in far.lines):
+            assert time.monotonic() < t_end and run.poll() is None, "".join(far.lines)
+            time.sleep(0.05)
+        time.sleep(1.0)
+        far.kill()
+        t_kill = time.monotonic()
+        out, err = run.communicate(timeout=60)
+        t_exit = time.monotonic() - t_kill
+    finally:
+        if run.poll() is None:
+            run.kill()
+        if far.proc.poll() is None:
+            far.kill()
+    assert run.returncode == 3, err
+    errors = [ln for ln in err.splitlines() if "error:" in ln]
+    assert len(errors) == 1 and "Traceback" not in err, err
+    assert errors[0].startswith("dsteleop run: error: zenoh:iiwa: robot lost: no robot state for")
+    assert "more than 2 s" in errors[0]
+    # lost 0.2 s after its last state, then 2 s more; the closing takes its time too
+    assert 2.0 <= t_exit <= 2.2 + 5.0, t_exit
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["stopped_by"] == "robot-lost" and summary["outcome"] == "none"
+    lost_ticks = summary["robot_lost_ticks"]
+    assert 2.0 * 30 * 0.8 <= lost_ticks <= 2.2 * 30 * 1.2, lost_ticks
+    session = read_session(rec)
+    assert session.complete and len(session.records) == summary["ticks"]
+
+
+def test_a_dead_far_end_ends_run_at_the_time_limit(tmp_path):
+    """With a long `--robot-lost-s`, `--time-limit` still ends a run whose robot is lost:
+    at the limit, exit code 3 and the reason."""
+    cfg = link_file(tmp_path, free_port())
+    far = Far(cfg)
+    run = subprocess.Popen(
+        [*CLI, "run", "--robot", f"zenoh:{cfg}", "--time-limit", "4", "--robot-lost-s", "60"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        t_end = time.monotonic() + 120
+        while not any("commands arrive; moving" in ln for ln in far.lines):
+            assert time.monotonic() < t_end and run.poll() is None, "".join(far.lines)
+            time.sleep(0.05)
+        time.sleep(1.0)
+        far.kill()
+        out, err = run.communicate(timeout=60)
+    finally:
+        if run.poll() is None:
+            run.kill()
+        if far.proc.poll() is None:
+            far.kill()
+    assert run.returncode == 3, err
+    errors = [ln for ln in err.splitlines() if "error:" in ln]
+    assert len(errors) == 1 and "robot lost at the time limit (4 s) with no outcome" in errors[0]
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["stopped_by"] == "robot-lost" and summary["outcome"] == "none"
+    assert 4.0 * 30 * 0.8 <= summary["ticks"] <= 4.0 * 30 * 1.1, summary["ticks"]

@@ -161,6 +161,31 @@ def test_wrong_type_is_one_clear_error():
         ros.type_of_key("chatter")
 
 
+def test_every_cut_cdr_buffer_is_one_clear_error():
+    """A buffer cut anywhere is an InputError (what a subscription drops as `bad_payload`),
+    never another exception that would end the end that received it."""
+    pose = ros.encode_pose(np.array([0.5, 0.1, 0.4]), np.eye(3), "base", 123)
+    joints = ros.encode_joints(("thumb", "index"), np.array([0.3, 0.7]), 123)
+    for data, decode in ((pose, ros.decode_pose), (joints, ros.decode_joints)):
+        for n in range(len(data)):
+            with pytest.raises(InputError):
+                decode(data[:n])
+
+
+def test_an_end_that_only_connects_is_a_zenoh_client():
+    """Peers that listen nowhere get nothing through a router (docs/link.md, "Behind a Zenoh
+    router"): such an end is a client; one that listens is a peer."""
+    from dsteleop.app.link.config import Endpoints
+    from dsteleop.app.link.session import session_mode
+
+    ep = "tcp/127.0.0.1:7447"
+    assert session_mode(Endpoints(connect=(ep,))) == "client"
+    assert session_mode(Endpoints(listen=(ep,))) == "peer"
+    assert session_mode(Endpoints(listen=("tcp/127.0.0.1:0",), connect=(ep,))) == "peer"
+    c = LinkConfig()
+    assert (session_mode(c.near), session_mode(c.far)) == ("client", "peer")
+
+
 def test_config_defaults_file_and_errors(tmp_path):
     c = LinkConfig()
     assert c.far.listen == ("tcp/127.0.0.1:7447",) and c.near.connect == ("tcp/127.0.0.1:7447",)

@@ -3,8 +3,9 @@
 Each sub-command module has `add_arguments(parser)` and `run(args) -> int`, turns its
 arguments into one typed, checked command object and imports what it runs only inside
 `run`, so `dsteleop --help` and `dsteleop COMMAND --help` stay instant and never load
-MediaPipe, PyBullet or Viser. A `DsteleopError` anywhere becomes one line on stderr and exit
-code 2 (the only exception caught here); Ctrl-C exits with 130.
+MediaPipe, PyBullet or Viser. A `DsteleopError` anywhere becomes one line on stderr and its
+exit code (2; 3 for a lost robot, `RobotLostError`; the only exceptions caught here); Ctrl-C
+exits with 130.
 """
 
 from __future__ import annotations
@@ -91,7 +92,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return int(module.run(args))
         except DsteleopError as exc:
             print(f"dsteleop {command}: error: {exc}", file=sys.stderr)
-            return 2
+            return exc.exit_code
         except KeyboardInterrupt:
             print(f"dsteleop {command}: interrupted", file=sys.stderr)
             return 130

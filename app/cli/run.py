@@ -6,6 +6,12 @@ Headless (the default for `demo` and `video:`) runs as fast as the machine allow
 manual clock, deterministically; `--realtime` runs at the loop rate on the monotonic clock
 (always for a webcam). Prints one JSON summary on stdout: outcome, ticks, simulated time,
 wall time, timing.
+
+A robot lost (no state, `ports.ROBOT_STALE_S`) for longer than `--robot-lost-s` (default 5 s),
+or still lost when the trial reaches its time limit without an outcome, ends the run: the
+summary is printed (`stopped_by: robot-lost`), the recording is closed complete, and the
+command exits with code 3 and a one-line reason (`RobotLostError`), so a script can tell a
+dead robot from a normal run. The loop itself halts the robot smoothly as soon as it is lost.
 """
 
 from __future__ import annotations
@@ -13,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import signal
 import sys
 import time
@@ -27,7 +34,7 @@ from dsteleop.app.cli.options import (
 )
 from dsteleop.app.cli.signals import StopOnSignal
 from dsteleop.app.link.config import link_config_path
-from dsteleop.errors import ConfigError
+from dsteleop.errors import ConfigError, RobotLostError
 
 log = logging.getLogger(__name__)
 
@@ -41,12 +48,14 @@ class RunCommand:
         realtime: run at the loop rate on the monotonic clock (live).
         max_seconds: stop after this much loop time [s].
         linked: the robot is at the far end of a link (`--robot zenoh:CONFIG`).
+        robot_lost_s: a robot lost for longer than this ends the run (exit code 3) [s].
     """
 
     options: LoopOptions
     realtime: bool
     max_seconds: float
     linked: bool = False
+    robot_lost_s: float = 5.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -62,17 +71,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=150.0,
         help="stop after this loop time [s] (the task fails by timeout at 120 s)",
     )
+    parser.add_argument(
+        "--robot-lost-s",
+        type=float,
+        default=5.0,
+        metavar="S",
+        help="a robot lost (no state) for longer than S seconds ends the run with exit code 3 "
+        "(default 5; a linked robot whose far end died)",
+    )
 
 
 def command(args: argparse.Namespace) -> RunCommand:
     options = loop_options(args)
     if not args.max_seconds > 0:
         raise ConfigError(f"--max-seconds must be > 0, got {args.max_seconds}")
+    if not (math.isfinite(args.robot_lost_s) and args.robot_lost_s > 0):
+        raise ConfigError(f"--robot-lost-s must be > 0 seconds, got {args.robot_lost_s}")
     live = options.source.kind in ("webcam", "auto")
     linked = link_config_path(options.robot) is not None
     # A linked robot's physics keeps its own clock: the loop runs in real time.
     return RunCommand(
-        options, bool(args.realtime or live or linked), float(args.max_seconds), linked
+        options,
+        bool(args.realtime or live or linked),
+        float(args.max_seconds),
+        linked,
+        float(args.robot_lost_s),
     )
 
 
@@ -102,7 +125,13 @@ def run(args: argparse.Namespace) -> int:
             if session is not None:
                 loop.start_recording(session, {"command": "run", "argv": sys.argv[1:]})
             if cmd.realtime:
-                loop.run(max_ticks=max_ticks, until_outcome=True, until_finished=True)
+                loop.run(
+                    max_ticks=max_ticks,
+                    until_outcome=True,
+                    until_finished=True,
+                    robot_lost_limit_s=cmd.robot_lost_s,
+                    time_limit_s=_time_limit_s(opts, loop.task.describe()),
+                )
             else:
                 loop.run_headless(max_ticks)
             ended = loop.hand.end_reason if loop.hand.finished else ""
@@ -115,6 +144,8 @@ def run(args: argparse.Namespace) -> int:
         check_video_complete(built.video, opts.allow_partial, kept)
     if stopper.received:
         stopped_by = stopper.received
+    elif loop.robot_lost_end:
+        stopped_by = "robot-lost"
     elif loop.outcome:
         stopped_by = "outcome"
     elif ended:
@@ -136,10 +167,23 @@ def run(args: argparse.Namespace) -> int:
     }
     if cmd.linked:
         summary["robot_lost_ticks"] = loop.robot_lost_ticks
+        # stray messages the near end dropped on the state topics (ZenohRobot.dropped)
+        summary["dropped_stray"] = getattr(loop.robot, "dropped", {})
     if built.rerun is not None:
         summary["rerun"] = built.rerun.summary()
     if built.dataset is not None:
         summary["lerobot"] = built.dataset.summary()
     json.dump(summary, sys.stdout)
     sys.stdout.write("\n")
+    if loop.robot_lost_end and not stopper.received:
+        sys.stdout.flush()
+        raise RobotLostError(loop.robot_lost_end)
     return 0
+
+
+def _time_limit_s(opts: LoopOptions, task: dict[str, Any]) -> float | None:
+    """The trial's time limit [s]: `--time-limit`, else the task's own (None: it has none)."""
+    if opts.time_limit_s is not None:
+        return opts.time_limit_s
+    own = (task.get("task") or {}).get("timeout_s")
+    return None if own is None else float(own)

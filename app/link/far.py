@@ -19,8 +19,12 @@ of its own, the kitchen scene standing for what is in front of a real arm, in re
                fingers' openness, stamped and numbered. Before the first command the world
                stands still (published, not stepped), as the near end's twin does.
 
-A wrong message on a command topic (another type, bytes that are not the type) stops it with
-an `InputError` (one line, exit code 2).
+A stray message on a command topic (another type, bytes that are not the type, a cut
+buffer, a missing attachment, a pose in another frame than `base_frame`, finger openness
+without one of the robot's fingers) is dropped, counted and logged (`session.Subscription`:
+the first of each reason at once, then at most a line per 5 s): in a ROS 2 graph anyone can
+publish on a topic, so it is never fatal. The counts are in `summary()["dropped_stray"]`,
+by topic and reason.
 """
 
 from __future__ import annotations
@@ -37,7 +41,6 @@ import numpy as np
 from dsteleop.app.link import ros
 from dsteleop.app.link.config import LinkConfig
 from dsteleop.app.link.session import Node, Received, Subscription, Topic, open_session
-from dsteleop.errors import InputError
 
 log = logging.getLogger(__name__)
 
@@ -102,6 +105,7 @@ class FarEnd:
             ros.decode_pose,
             lambda r: self._offer(self._pose_slot, r),
             self.node,
+            check=self._check_pose,
         )
         self._fingers_in: Subscription[ros.JointsMsg] = Subscription(
             self._session,
@@ -111,6 +115,7 @@ class FarEnd:
             ros.decode_joints,
             lambda r: self._offer(self._fingers_slot, r),
             self.node,
+            check=self._check_fingers,
         )
         n = self.node
         self._pose_out = Topic(self._session, d, t.state_pose, ros.POSE_STAMPED, n)
@@ -128,6 +133,17 @@ class FarEnd:
         self._last_cmd_mono: float | None = None
         self._hold = (st.X.position.copy(), st.X.rotation.copy())
         self._openness = st.X.openness.copy()
+
+    def _check_pose(self, msg: ros.PoseMsg) -> str | None:
+        """Why a pose command is refused: another frame than `base_frame` (None: it is not)."""
+        if msg.frame_id != self.config.base_frame:
+            return f"pose in frame {msg.frame_id!r}, expected {self.config.base_frame!r}"
+        return None
+
+    def _check_fingers(self, msg: ros.JointsMsg) -> str | None:
+        """Why a finger command is refused: one of the robot's fingers is missing."""
+        missing = [f for f in self.config.finger_names if f not in msg.names]
+        return f"lacks finger {missing[0]!r}" if missing else None
 
     def _offer(self, slot: _Slot, rec: Received[Any]) -> None:
         """Zenoh's thread: keep a command if it is fresh and in order (module docstring)."""
@@ -149,30 +165,16 @@ class FarEnd:
             slot.taken = True
             return slot.rec
 
-    def _check_errors(self) -> None:
-        self._pose_in.newest()  # raises InputError after a wrong message
-        self._fingers_in.newest()
-
     def _apply_commands(self) -> None:
         fingers = self._take(self._fingers_slot)
         if fingers is not None:
             by_name = dict(zip(fingers.msg.names, fingers.msg.positions, strict=True))
-            missing = [f for f in self.config.finger_names if f not in by_name]
-            if missing:
-                raise InputError(
-                    f"robot-sim: {self.config.topics.command_fingers} lacks finger {missing[0]!r}"
-                )
             self._openness = np.clip([by_name[f] for f in self.config.finger_names], 0.0, 1.0)
         pose = self._take(self._pose_slot)
         if pose is None:
             if fingers is not None and not self.halted:
                 self.robot.env.set_target(*self._hold, self._openness)
             return
-        if pose.msg.frame_id != self.config.base_frame:
-            raise InputError(
-                f"robot-sim: command pose in frame {pose.msg.frame_id!r}, expected "
-                f"{self.config.base_frame!r}"
-            )
         self._hold = (pose.msg.p_m, pose.msg.R)
         self.robot.env.set_target(pose.msg.p_m, pose.msg.R, self._openness)
         self.latencies_s.append(time.time_ns() * 1e-9 - pose.attachment.stamp_ns * 1e-9)
@@ -225,7 +227,6 @@ class FarEnd:
                 deadline = min(deadline, self._last_cmd_mono + self.config.command_timeout_s)
             self._wake.wait(max(0.0, deadline - now) + 1e-4)
             self._wake.clear()
-            self._check_errors()
             self._apply_commands()
             now = time.monotonic()
             self._watchdog(now)
@@ -247,6 +248,7 @@ class FarEnd:
             "dropped_out_of_order": self.dropped_order,
             "halted": self.halted,
             "halt_reason": self.halt_reason,
+            "dropped_stray": self.dropped(),
             "latency_ms": {
                 "p50": round(float(np.percentile(lat, 50)), 3) if lat.size else None,
                 "p95": round(float(np.percentile(lat, 95)), 3) if lat.size else None,
@@ -255,6 +257,10 @@ class FarEnd:
                 "n": int(lat.size),
             },
         }
+
+    def dropped(self) -> dict[str, dict[str, int]]:
+        """Stray messages dropped on each command topic, by reason (`Subscription.REASONS`)."""
+        return {s.topic: s.dropped for s in (self._pose_in, self._fingers_in)}
 
     def close(self) -> None:
         for c in getattr(self, "_endpoints", ()):

@@ -10,14 +10,18 @@ number is the loop's tick seq). `state` returns the newest measured palm pose, j
 finger openness the far end published (the joints in `joint_names` order: the arm's, then
 the fingers', as the kitchen task's twin takes them), stamped with their arrival on the
 loop's clock: the loop treats a state older than 0.2 s (`ports.ROBOT_STALE_S`) as a lost
-robot and halts (`link_status` says why, for tools). A wrong message on a state topic
-(another type, bytes that are not the type) is an `InputError` from `state`: one line and
-exit code 2 at the command line.
+robot and halts (`link_status` says why, for tools). A stray message on a state topic
+(another type, bytes that are not the type, a cut buffer, a pose in another frame than
+`base_frame`, a JointState without one of the robot's joints or fingers) is dropped,
+counted and logged (`session.Subscription`), never fatal: the newest good state stays the
+newest (`dropped` has the counts, and `reset`'s timeout names the last drop).
 """
 
 from __future__ import annotations
 
+import logging
 import time
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -31,6 +35,8 @@ from dsteleop.app.ports import ROBOT_LOST, ROBOT_STALE_S, RobotLimits, RobotStat
 from dsteleop.arbitration import HandState
 from dsteleop.errors import InputError
 from dsteleop.robot.scene import SceneGeometry
+
+log = logging.getLogger(__name__)
 
 #: The near end's node in a ROS 2 graph: /dsteleop (`ros2 node list`).
 NEAR_NODE = ros.RosNode("dsteleop")
@@ -64,19 +70,49 @@ class ZenohRobot:
         self._pose_out = Topic(s, d, t.command_pose, ros.POSE_STAMPED, n)
         self._fingers_out = Topic(s, d, t.command_fingers, ros.JOINT_STATE, n)
         self._pose_in: Subscription[ros.PoseMsg] = Subscription(
-            s, d, t.state_pose, ros.POSE_STAMPED, ros.decode_pose, node=n
+            s, d, t.state_pose, ros.POSE_STAMPED, ros.decode_pose, node=n, check=self._check_pose
         )
         self._joints_in: Subscription[ros.JointsMsg] = Subscription(
-            s, d, t.state_joints, ros.JOINT_STATE, ros.decode_joints, node=n
+            s,
+            d,
+            t.state_joints,
+            ros.JOINT_STATE,
+            ros.decode_joints,
+            node=n,
+            check=lambda m: _lacks(m, self._joint_names, "joint", f" of robot {self.desc.name}"),
         )
         self._fingers_in: Subscription[ros.JointsMsg] = Subscription(
-            s, d, t.state_fingers, ros.JOINT_STATE, ros.decode_joints, node=n
+            s,
+            d,
+            t.state_fingers,
+            ros.JOINT_STATE,
+            ros.decode_joints,
+            node=n,
+            check=lambda m: _lacks(m, self.config.finger_names, "finger"),
         )
         self._X_sent: HandState | None = None
         self._t_sent_s: float | None = None
         #: The last command as sent (after the clamp), for tests and benchmarks.
         self.last_sent: HandState | None = None
         self.sent = 0
+
+    def _check_pose(self, msg: ros.PoseMsg) -> str | None:
+        """Why a palm pose is refused: another frame than `base_frame` (None: it is not)."""
+        if msg.frame_id != self.config.base_frame:
+            return (
+                f"palm pose in frame {msg.frame_id!r}, expected {self.config.base_frame!r} "
+                "(base_frame)"
+            )
+        return None
+
+    @property
+    def dropped(self) -> dict[str, dict[str, int]]:
+        """Stray messages dropped on each state topic, by reason (`Subscription.REASONS`)."""
+        return {s.topic: s.dropped for s in self._subscriptions}
+
+    @property
+    def _subscriptions(self) -> tuple[Subscription[Any], ...]:
+        return (self._pose_in, self._joints_in, self._fingers_in)
 
     # --- Robot -------------------------------------------------------------------------
 
@@ -109,7 +145,8 @@ class ZenohRobot:
         `robot-sim` starts at the home pose), and the next command starts from there.
 
         Raises:
-            InputError: no state within `connect_timeout_s`, or a wrong message.
+            InputError: no state within `connect_timeout_s` (naming the last stray message
+                dropped, if any).
         """
         t0 = time.monotonic()
         while True:
@@ -121,9 +158,11 @@ class ZenohRobot:
             ):
                 break
             if time.monotonic() - t0 > self.config.connect_timeout_s:
+                drops = [s.last_drop for s in self._subscriptions if s.last_drop]
+                why = f"dropped: {drops[-1]}" if drops else "is the far end running?"
                 raise InputError(
                     f"robot link: no robot state on {self.config.topics.state_pose} within "
-                    f"{self.config.connect_timeout_s:g} s (is the far end running?)"
+                    f"{self.config.connect_timeout_s:g} s ({why})"
                 )
             time.sleep(0.005)
         self._X_sent, self._t_sent_s = st.X, None
@@ -159,17 +198,12 @@ class ZenohRobot:
 
     def state(self, now_s: float) -> RobotState | None:
         """The newest measured state, stamped on the loop's clock (its arrival); None before
-        the first. Raises `InputError` once a wrong message arrived on a state topic."""
+        the first."""
         pose = self._pose_in.newest()
         joints = self._joints_in.newest()
         fingers = self._fingers_in.newest()
         if pose is None:
             return None
-        if pose.msg.frame_id != self.config.base_frame:
-            raise InputError(
-                f"robot link: palm pose in frame {pose.msg.frame_id!r}, expected "
-                f"{self.config.base_frame!r} (base_frame)"
-            )
         q = self._joints(joints)
         g = self._openness(fingers)
         age_s = time.monotonic() - pose.t_recv_mono_s
@@ -180,12 +214,6 @@ class ZenohRobot:
         if joints is None:
             return np.full(len(self._joint_names), np.nan)
         by_name = dict(zip(joints.msg.names, joints.msg.positions, strict=True))
-        missing = [j for j in self._joint_names if j not in by_name]
-        if missing:
-            raise InputError(
-                f"robot link: {self.config.topics.state_joints} lacks joint {missing[0]!r} of "
-                f"robot {self.desc.name}"
-            )
         return np.array([by_name[j] for j in self._joint_names], dtype=np.float64)
 
     def _openness(self, fingers: Received[ros.JointsMsg] | None) -> NDArray[np.float64]:
@@ -193,11 +221,6 @@ class ZenohRobot:
             sent = self._X_sent
             return np.ones(len(self.finger_names)) if sent is None else sent.openness.copy()
         by_name = dict(zip(fingers.msg.names, fingers.msg.positions, strict=True))
-        missing = [f for f in self.finger_names if f not in by_name]
-        if missing:
-            raise InputError(
-                f"robot link: {self.config.topics.state_fingers} lacks finger {missing[0]!r}"
-            )
         return np.clip(np.array([by_name[f] for f in self.finger_names]), 0.0, 1.0)
 
     def link_status(self, now_s: float) -> str:
@@ -221,6 +244,9 @@ class ZenohRobot:
         return None
 
     def close(self) -> None:
+        dropped = {t: n for t, d in self.dropped.items() if (n := sum(d.values()))}
+        if dropped:
+            log.warning("robot link: stray messages dropped on the state topics: %s", dropped)
         for c in (
             self._pose_out,
             self._fingers_out,
@@ -231,3 +257,9 @@ class ZenohRobot:
         ):
             c.close()
         self._session.close()
+
+
+def _lacks(msg: ros.JointsMsg, names: Sequence[str], kind: str, of: str = "") -> str | None:
+    """Why a JointState is refused: it lacks one of `names` (None: it has them all)."""
+    missing = [n for n in names if n not in msg.names]
+    return f"lacks {kind} {missing[0]!r}{of}" if missing else None

@@ -16,6 +16,7 @@ with the session.
 from __future__ import annotations
 
 import json
+import logging
 import threading
 import time
 from collections.abc import Callable
@@ -26,12 +27,24 @@ from dsteleop.app.link import ros
 from dsteleop.app.link.config import Endpoints
 from dsteleop.errors import InputError
 
+log = logging.getLogger(__name__)
+
 T = TypeVar("T")
+
+#: After the first drop of each reason, a subscription logs its drops at most this often [s].
+DROP_LOG_PERIOD_S = 5.0
+
+
+def session_mode(ends: Endpoints) -> str:
+    """ "peer" for an end that listens, "client" for one that only connects (module
+    docstring: peers that do not listen get nothing through a router)."""
+    return "peer" if ends.listen else "client"
 
 
 def open_session(ends: Endpoints, connect_timeout_s: float, who: str) -> Any:
-    """A Zenoh peer session that listens and connects where `ends` says, and nowhere else
-    (no multicast scouting: nothing leaves the given endpoints).
+    """A Zenoh session that listens and connects where `ends` says, and nowhere else (no
+    multicast scouting: nothing leaves the given endpoints): a peer if it listens, else a
+    client (`session_mode`).
 
     Raises:
         InputError: a listen endpoint cannot be bound, or no connect endpoint answered within
@@ -40,9 +53,10 @@ def open_session(ends: Endpoints, connect_timeout_s: float, who: str) -> Any:
     import zenoh
 
     c = zenoh.Config()
-    c.insert_json5("mode", '"peer"')
-    c.insert_json5("listen/endpoints", json.dumps(list(ends.listen)))
-    c.insert_json5("listen/exit_on_failure", "true")
+    c.insert_json5("mode", json.dumps(session_mode(ends)))
+    if ends.listen:
+        c.insert_json5("listen/endpoints", json.dumps(list(ends.listen)))
+        c.insert_json5("listen/exit_on_failure", "true")
     c.insert_json5("connect/endpoints", json.dumps(list(ends.connect)))
     if ends.connect:
         c.insert_json5("connect/timeout_ms", str(max(1, round(connect_timeout_s * 1000))))
@@ -171,8 +185,8 @@ class Received(Generic[T]):
 class Subscription(Generic[T]):
     """The newest message of one ROS 2 type on one topic (module docstring).
 
-    It subscribes to every type on the topic, so a publisher of another type is seen and
-    named rather than silently never matched.
+    It subscribes to every type on the topic, so a publisher of another type is seen, named
+    and dropped rather than silently never matched.
 
     Args:
         session: an open Zenoh session.
@@ -182,7 +196,12 @@ class Subscription(Generic[T]):
         decode: CDR bytes -> message (raises `InputError` on bytes that are not one).
         on_message: called with each good message, in Zenoh's thread (must not block).
         node: the node it belongs to, which declares its liveliness token (None: no token).
+        check: a decoded message -> why it is refused ("" or None: accepted), e.g. a pose in
+            another frame; a refused message is dropped as "refused".
     """
+
+    #: The reasons a message is dropped, the keys of `dropped`.
+    REASONS = ("wrong_type", "bad_attachment", "bad_payload", "refused")
 
     def __init__(
         self,
@@ -193,17 +212,24 @@ class Subscription(Generic[T]):
         decode: Callable[[bytes], T],
         on_message: Callable[[Received[T]], None] | None = None,
         node: Node | None = None,
+        check: Callable[[T], str | None] | None = None,
     ) -> None:
         self.topic = topic
         self.ros_type = ros_type
         self._dds = ros.dds_type_name(ros_type)
         self._hash = ros.type_hash(ros_type)
         self._decode = decode
+        self._check = check
         self._on_message = on_message
         self._lock = threading.Lock()
         self._newest: Received[T] | None = None
-        self._error: str | None = None
         self.count = 0
+        self._dropped = dict.fromkeys(self.REASONS, 0)
+        #: The newest drop's one-line reason ("" before any).
+        self.last_drop = ""
+        self._logged: set[str] = set()
+        self._t_log = -float("inf")
+        self._unlogged = 0
         self._sub = session.declare_subscriber(
             ros.topic_wildcard(domain_id, topic), self._on_sample
         )
@@ -215,6 +241,7 @@ class Subscription(Generic[T]):
 
     def _on_sample(self, sample: Any) -> None:
         t_mono, t_ns = time.monotonic(), time.time_ns()
+        reason = "wrong_type"
         try:
             dds, hsh = ros.type_of_key(str(sample.key_expr))
             if dds != self._dds:
@@ -227,13 +254,17 @@ class Subscription(Generic[T]):
                     f"robot link: topic {self.topic}: type hash {hsh} differs from "
                     f"{self.ros_type}'s {self._hash} (another definition of the type)"
                 )
+            reason = "bad_attachment"
             att = sample.attachment
             attachment = ros.decode_attachment(None if att is None else att.to_bytes())
+            reason = "bad_payload"
             msg = self._decode(sample.payload.to_bytes())
+            reason = "refused"
+            why = self._check(msg) if self._check is not None else None
+            if why:
+                raise InputError(f"robot link: topic {self.topic}: {why}")
         except InputError as exc:
-            with self._lock:
-                if self._error is None:
-                    self._error = str(exc)
+            self._drop(reason, str(exc), t_mono)
             return
         rec = Received(msg, attachment, t_mono, t_ns)
         with self._lock:
@@ -242,15 +273,31 @@ class Subscription(Generic[T]):
         if self._on_message is not None:
             self._on_message(rec)
 
-    def newest(self) -> Received[T] | None:
-        """The newest good message, or None before the first.
-
-        Raises:
-            InputError: a wrong message arrived on the topic (once seen, always raised).
-        """
+    def _drop(self, reason: str, text: str, t_mono: float) -> None:
+        """Count a dropped message; log it if it is the first of its reason or the last line
+        is `DROP_LOG_PERIOD_S` old (with the drops since), else only count it."""
         with self._lock:
-            if self._error is not None:
-                raise InputError(self._error)
+            self._dropped[reason] += 1
+            self.last_drop = text
+            first = reason not in self._logged
+            if not first and t_mono - self._t_log < DROP_LOG_PERIOD_S:
+                self._unlogged += 1
+                return
+            self._logged.add(reason)
+            since, self._unlogged, self._t_log = self._unlogged, 0, t_mono
+            total = sum(self._dropped.values())
+        more = f"; {since} more since the last line" if since else ""
+        log.warning("%s: dropped (%d on this topic so far%s)", text, total, more)
+
+    @property
+    def dropped(self) -> dict[str, int]:
+        """How many messages were dropped, by reason (`REASONS`)."""
+        with self._lock:
+            return dict(self._dropped)
+
+    def newest(self) -> Received[T] | None:
+        """The newest good message, or None before the first."""
+        with self._lock:
             return self._newest
 
     def close(self) -> None:

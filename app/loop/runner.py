@@ -163,8 +163,12 @@ class TeleopLoop:
         self.events_log: list[tuple[int, str]] = []
         self._seq = 0  # the robot's command sequence number (one per tick, never reset)
         self._robot_lost = ""  # why the robot cannot be driven ("" while it can)
+        self._robot_lost_since: float | None = None  # the first tick of the current loss
+        self._trial_t0: float | None = None  # the first tick of the current trial
         #: Ticks on which the robot was lost (its state missing or stale), since the start.
         self.robot_lost_ticks = 0
+        #: Why `run` stopped on a lost robot ("" if it did not; `run`'s robot_lost_limit_s).
+        self.robot_lost_end = ""
         self._joints: Array | None = None  # the robot's last measured joints (None: none)
         reset = self._reset_world(None)
         self.state = tick.start(reset.X, self.arbiter, history)
@@ -200,6 +204,8 @@ class TeleopLoop:
         self.task.reset(utensil)
         rs = self.robot.reset(self.clock.now())
         self._robot_lost = ""
+        self._robot_lost_since = None
+        self._trial_t0 = None
         self._last_step = TaskStep(Phase.PICK)
         self._joints = _joints_of(rs)
         return rs
@@ -350,6 +356,8 @@ class TeleopLoop:
         if self._reset_due(now) and not requests.reset:
             requests = dataclasses.replace(requests, reset=True)  # the next trial
         self._apply(requests)
+        if self._trial_t0 is None:
+            self._trial_t0 = now
         reset_state, self._reset_state = self._reset_state, None
         inp = self.hand.poll(now)
         self._last_input = inp
@@ -444,6 +452,8 @@ class TeleopLoop:
                     "%s: no robot state for %.2f s: halting", self.robot.name, ROBOT_STALE_S
                 )
             self._robot_lost = ROBOT_LOST
+            if self._robot_lost_since is None:
+                self._robot_lost_since = now_s
             return PlantStep(
                 self.state.X_current,
                 self._last_step.phase,
@@ -454,9 +464,39 @@ class TeleopLoop:
         if self._robot_lost:
             log.info("%s: robot state again", self.robot.name)
         self._robot_lost = ""
+        self._robot_lost_since = None
         self._last_step = self.task.update(rs)
         self._joints = _joints_of(rs)
         return PlantStep.of(rs.X, self._last_step, self._joints)
+
+    def robot_lost_for(self, now_s: float) -> float:
+        """How long the robot has been lost, since the first tick that found its state missing
+        or stale (that is, ROBOT_STALE_S after its last state) [s]; 0 while it is not."""
+        since = self._robot_lost_since
+        return 0.0 if since is None else now_s - since
+
+    def _lost_too_long(
+        self, now_s: float, lost_limit_s: float | None, time_limit_s: float | None
+    ) -> str:
+        """Why a run must stop on a lost robot ("" while it need not): lost for longer than
+        `lost_limit_s`, or still lost when the trial reached `time_limit_s` without an outcome
+        (the task cannot judge a trial it cannot see, so its own timeout does not come)."""
+        lost_s = self.robot_lost_for(now_s)
+        if not self._robot_lost or self.state.outcome is not None:
+            return ""
+        if lost_limit_s is not None and lost_s > lost_limit_s:
+            return (
+                f"{self.robot.name}: {ROBOT_LOST}: no robot state for "
+                f"{lost_s + ROBOT_STALE_S:.1f} s (more than {lost_limit_s:g} s); the run stopped "
+                "without an outcome"
+            )
+        t0 = self._trial_t0
+        if time_limit_s is not None and t0 is not None and now_s - t0 >= time_limit_s:
+            return (
+                f"{self.robot.name}: {ROBOT_LOST} at the time limit ({time_limit_s:g} s) with no "
+                f"outcome; no robot state for the last {lost_s + ROBOT_STALE_S:.1f} s"
+            )
+        return ""
 
     def _history_term(self) -> Array | None:
         key = (len(self.history), self.config.arbitration)
@@ -494,12 +534,16 @@ class TeleopLoop:
         until_outcome: bool = False,
         until_finished: bool = False,
         tail_s: float = 0.5,
+        robot_lost_limit_s: float | None = None,
+        time_limit_s: float | None = None,
     ) -> None:
         """Tick in real time until `stop()`, `max_ticks`, or (optionally) an outcome or
         the end of a file source (plus `tail_s` [s], so the halt shows in the record, as in
-        `run_headless`). The hand input starts delivering (a file starts playing) just
-        before the first tick. Each tick follows the hand's new frames when it has them
-        (`follow_frames` and `HandInput.arrivals`: a camera, a video), else the fixed rate
+        `run_headless`), or a lost robot: lost for longer than `robot_lost_limit_s`, or
+        lost when the trial reaches `time_limit_s` [s] without an outcome (`robot_lost_end`
+        says which; None: no such limit). The hand input starts delivering (a file starts
+        playing) just before the first tick. Each tick follows the hand's new frames when it
+        has them (`follow_frames` and `HandInput.arrivals`: a camera, a video), else the fixed rate
         (`timing.RateClock`); it never waits for a frame past its nominal time beyond the
         moment the input it has goes stale, so the halt comes when it would at the fixed rate.
 
@@ -534,6 +578,10 @@ class TeleopLoop:
                 if max_ticks is not None and n >= max_ticks:
                     break
                 if until_outcome and self.outcome:
+                    break
+                why = self._lost_too_long(timing.t_start_s, robot_lost_limit_s, time_limit_s)
+                if why:
+                    self.robot_lost_end = why  # the caller reports it
                     break
                 if until_finished and end_at is None and self.hand.finished:
                     end_at = timing.t_start_s + tail_s
