@@ -292,3 +292,251 @@ def test_sweep_on_a_cluster_the_user_started_runs_and_resumes(tmp_path: Path) ->
         assert (b["computed"], b["resumed"]) == (0, 2) and b["counts"] == a["counts"]
     finally:
         subprocess.run([str(ray), "stop", "--force"], capture_output=True, env=env, timeout=120)
+
+
+# --- the axes design and a configuration per cell -----------------------------------------------
+
+
+def test_axes_design_varies_one_impairment_at_a_time_from_the_worlds_centre() -> None:
+    g = sweep.default_grid()
+    mid = sweep.centre(sc.SimConfig())
+    w = Impairments()
+    assert mid == (w.goal_sigma_m, w.delay_s, w.depth_sigma_m)
+    cells = sweep.design_cells(g, "axes", mid)
+    assert len(cells) == 7 and mid in cells
+    assert all(sum(a != b for a, b in zip(c, mid, strict=True)) <= 1 for c in cells)
+    # Each other level of each axis once, in the grid's order.
+    for k, axis in enumerate(sweep.AXES):
+        assert sorted(c[k] for c in cells if c[k] != mid[k]) == [
+            v for v in g.levels[axis] if v != mid[k]
+        ]
+    assert cells == [c for c in g.cells() if c in cells]
+    assert sweep.design_cells(g, "grid", mid) == g.cells()
+    # The centre follows the world the study is given.
+    moved = sweep.centre(sc.SimConfig(world=Impairments(delay_s=0.0)))
+    assert moved[1] == 0.0 and len(sweep.design_cells(g, "axes", moved)) == 7
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--sweep-design", "axes", "--goal-sigma", "0.03"], "the world's goal 0.03 (the centre)"),
+        (["--cell-configs", "{tmp}", "--config", "docs/tuned/both.json"], "mutually exclusive"),
+        (["--cell-configs", "{tmp}/none"], "--cell-configs: not a folder"),
+        (["--cell-configs", "{tmp}"], "no goal0_delay0.2_depth0.015.json (7 of 7 cells"),
+        (["--cell-configs", "{tmp}", "--sweep-design", "grid"], "(27 of 27 cells"),
+    ],
+)
+def test_bad_design_or_cell_configs_are_one_line_and_exit_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], extra: list[str], message: str
+) -> None:
+    args = [a.replace("{tmp}", str(tmp_path)) for a in extra]
+    if "grid" not in args and "--goal-sigma" not in args:
+        args = ["--sweep-design", "axes", *args]
+    code = main(["sim", "--no-progress", "--out", str(tmp_path / "o"), "--sweep", *args])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert len(err) == 1 and err[0].startswith("dsteleop sim: error:") and message in err[0]
+    assert not (tmp_path / "o").exists()
+
+
+def test_design_and_cell_configs_need_a_sweep(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["sim", "--out", str(tmp_path), "--sweep-design", "axes"]) == 2
+    assert main(["sim", "--out", str(tmp_path), "--cell-configs", str(tmp_path)]) == 2
+    assert capsys.readouterr().err.count("go with --sweep") == 2
+
+
+def test_a_cell_config_that_is_not_a_configuration_names_its_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    grid = ["goal=0.02", "delay=0.2", "depth=0.015"]
+    (tmp_path / "goal0.02_delay0.2_depth0.015.json").write_text('{"kappa": "x", "nope": 1}')
+    code = main(
+        ["sim", "--out", str(tmp_path / "o"), "--sweep", *grid, "--cell-configs", str(tmp_path)]
+    )
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1
+    assert err[0].startswith("dsteleop sim: error: --cell-configs ") and "depth0.015.json" in err[0]
+
+
+# --- scripts/tune_sweep.py: its cells, its commands and its merge --------------------------------
+
+
+def _tune_sweep() -> Any:
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "tune_sweep.py"
+    spec = importlib.util.spec_from_file_location("tune_sweep", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+DOCS_TUNED = Path(__file__).resolve().parents[1] / "docs" / "tuned"
+
+
+def test_tune_sweep_tunes_the_cells_the_sweep_runs_with_the_cells_world() -> None:
+    ts = _tune_sweep()
+    g = sweep.default_grid()
+    assert ts.cells("axes") == sweep.design_cells(g, "axes", sweep.centre(sc.SimConfig()))
+    assert ts.cells("grid") == g.cells() and len(ts.cells("axes")) == 7
+    cmd = ts.tune_command((0.04, 0.2, 0.0), "scalar", Path("o/x"), 24, 200, 2)
+    assert cmd[:2] == ["dsteleop", "tune"]
+    opt = dict(zip(cmd[2::2], cmd[3::2], strict=False))
+    assert opt["--mode"] == "scalar" and opt["--metric"] == "success"
+    assert (opt["--goal-sigma"], opt["--delay"], opt["--depth-sigma"]) == ("0.04", "0.2", "0")
+    assert (opt["--trials"], opt["--trajectories"], opt["--study-seed"]) == ("24", "200", "0")
+    # The same budget for every mode: the commands differ only in the mode and the folder.
+    ds = ts.tune_command((0.04, 0.2, 0.0), "DS", Path("o/y"), 24, 200, 2)
+    assert [a for a, b in zip(cmd, ds, strict=True) if a != b] == ["scalar", "o/x"]
+
+
+def test_tune_sweep_merges_the_modes_best_files_as_both_json() -> None:
+    ts = _tune_sweep()
+    bests = {m: json.loads((DOCS_TUNED / f"{m}.json").read_text()) for m in ("DS", "scalar")}
+    both = json.loads((DOCS_TUNED / "both.json").read_text())["arbitration"]
+    merged = ts.merge_best(bests)
+    assert merged == both and list(merged) == list(both)
+    # The cell's file is a --config file that gives that arbitration.
+    from dsteleop.app.cli.options import config_from_file
+
+    data = ts.cell_file((0.02, 0.2, 0.015), bests)
+    assert set(data["objective"]) == {"DS", "scalar"}
+    assert "goal0.02_delay0.2_depth0.015" in data["note"]
+
+    def read(d: dict[str, Any], name: str) -> Any:
+        path = Path(os.environ.get("TMPDIR", "/tmp")) / f"tune_sweep_{os.getpid()}_{name}.json"
+        path.write_text(json.dumps(d))
+        try:
+            return config_from_file(path, [])[0]
+        finally:
+            path.unlink()
+
+    assert read(data, "cell").to_dict() == read({"arbitration": both}, "both").to_dict()
+    # Conflicts are refused: one parameter tuned two ways, or modes from different bases.
+    clash = json.loads(json.dumps(bests))
+    clash["scalar"]["objective"]["params"]["kappa"] = 1.0
+    with pytest.raises(ValueError, match="kappa tuned by DS and scalar"):
+        ts.merge_best(clash)
+    other = json.loads(json.dumps(bests))
+    other["scalar"]["arbitration"]["v_max_mps"] = 0.3
+    with pytest.raises(ValueError, match=r"scalar was tuned from another base \(v_max_mps\)"):
+        ts.merge_best(other)
+    with pytest.raises(ValueError, match=r"not a tune best\.json"):
+        ts.merge_best({"DS": both})
+
+
+def test_tune_sweep_dry_run_prints_every_command_and_writes_nothing(tmp_path: Path) -> None:
+    script = Path(__file__).resolve().parents[1] / "scripts" / "tune_sweep.py"
+    out = tmp_path / "cells"
+    proc = subprocess.run(
+        [sys.executable, str(script), "--out", str(out), "--dry-run", "--trials", "3"],
+        capture_output=True, text=True, timeout=120, check=False,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.strip().splitlines()
+    assert len(lines) == 7 * 2 and all(x.startswith("dsteleop tune ") for x in lines)
+    assert not out.exists()
+
+
+# --- a real sweep with a configuration per cell, on a local Ray cluster of 2 workers -------------
+
+
+@pytest.mark.slow
+def test_axes_sweep_runs_each_cell_with_its_own_configuration(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Three cells of the axes design over a 2 x 2 grid (the fourth is not run, and needs no
+    file); in one cell the scalar baseline is at its defaults (so it is S, trial for trial),
+    in another at both.json's tuned cap and scale (so it is not)."""
+    configs = tmp_path / "configs"
+    configs.mkdir()
+    both = json.loads((DOCS_TUNED / "both.json").read_text())
+    files = {
+        "goal0.02_delay0.2_depth0.015": both,
+        "goal0_delay0.2_depth0.015": {"arbitration": {"kappa": 5.0}},
+        "goal0.02_delay0_depth0.015": {},
+    }
+    for name, data in files.items():
+        (configs / f"{name}.json").write_text(json.dumps(data))
+    out = tmp_path / "sweep"
+    grid = ("goal=0,0.02", "delay=0,0.2", "depth=0.015")
+    args = [
+        "sim", "--no-progress", "--out", str(out), "--trajectories", "6", "--seed", "4",
+        "--modes", "S,DS,scalar", "--workers", "2", "--sweep", *grid,
+        "--sweep-design", "axes", "--cell-configs", str(configs),
+    ]  # fmt: skip
+
+    def run(*extra: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [sys.executable, "-m", "dsteleop.app.cli.main", *args, *extra],
+            capture_output=True, text=True, timeout=900, check=False,
+        )  # fmt: skip
+
+    first = run()
+    assert first.returncode == 0, first.stderr
+    printed = json.loads(first.stdout)
+    assert (printed["cells"], printed["computed"], printed["failed"]) == (3, 3, 0)
+    raw = {p.stem: json.loads(p.read_text()) for p in sorted((out / "cells").glob("*.json"))}
+    assert set(raw) == set(files)
+    s = json.loads((out / "sweep.json").read_text())
+    assert s["design"] == "axes" and "arbitration" not in s["config"]
+    assert s["centre"] == {"goal_sigma_m": 0.02, "delay_s": 0.2, "depth_sigma_m": 0.015}
+    import hashlib
+
+    from dsteleop.arbitration import ArbitrationConfig
+
+    md = (out / "sweep.md").read_text()
+    assert "Design: axes" in md and "| verdict | configuration |" in md
+    for name, data in files.items():
+        path = configs / f"{name}.json"
+        record = {"file": str(path), "sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
+        assert raw[name]["configuration"] == record and s["cell_configs"][name] == record
+        summary = next(c for c in s["cells"] if c["name"] == name)
+        assert summary["configuration"] == record
+        assert f"`{name}.json` {record['sha256'][:12]} |" in md
+        want = ArbitrationConfig.from_dict(data.get("arbitration", {})).to_dict()
+        assert raw[name]["settings"]["arbitration"] == want
+    # At its defaults the scalar baseline is S, trial for trial; tuned, it is not.
+    plain = raw["goal0.02_delay0_depth0.015"]["modes"]
+    assert plain["scalar"]["success"] == plain["S"]["success"]
+    np.testing.assert_allclose(plain["scalar"]["time_s"], plain["S"]["time_s"], atol=1e-9)
+    tuned = raw["goal0.02_delay0.2_depth0.015"]["modes"]
+    assert not np.allclose(tuned["scalar"]["time_s"], tuned["S"]["time_s"])
+    # A cell run alone with its file's arbitration gives the sweep's results.
+    cfg = sc.SimConfig(
+        trajectories=6, seed=4, modes=(Mode.S, Mode.DS, Mode.SCALAR),
+        arbitration=ArbitrationConfig.from_dict(both["arbitration"]),
+    )  # fmt: skip
+    alone = sweep.cell_task(cfg, (0.02, 0.2, 0.015))
+    for mode in ("S", "DS", "scalar"):
+        assert alone["modes"][mode]["success"] == tuned[mode]["success"]
+        np.testing.assert_allclose(alone["modes"][mode]["time_s"], tuned[mode]["time_s"], atol=1e-9)
+
+    # Resume with the same files computes nothing; the grid design reuses the three cells
+    # but needs the fourth cell's file.
+    again = run("--resume")
+    assert again.returncode == 0, again.stderr
+    assert (json.loads(again.stdout)["computed"], json.loads(again.stdout)["resumed"]) == (0, 3)
+
+    def refused(*extra: str) -> str:
+        code = main([*args, "--resume", *extra])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert code == 2 and len(err) == 1
+        return err[0]
+
+    assert "no goal0_delay0_depth0.015.json (1 of 4 cells" in refused("--sweep-design", "grid")
+    # A cell whose file now gives other parameters, or is another file with the same ones,
+    # or one configuration for every cell: refused, per cell.
+    name = "goal0_delay0.2_depth0.015"
+    (configs / f"{name}.json").write_text(json.dumps({"arbitration": {"kappa": 6.0}}))
+    assert f"{name}.json was computed with other settings" in refused()
+    (configs / f"{name}.json").write_text(json.dumps({"kappa": 5.0}))
+    assert f"{name}.json was computed with another configuration" in refused()
+    plain_args = [a for a in args if a not in ("--cell-configs", str(configs))]
+    code = main([*plain_args, "--resume"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "was computed with other settings" in err[0]

@@ -76,25 +76,28 @@ def add_config_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def read_config_file(path: Path | None) -> tuple[dict[str, Any], dict[str, Any]]:
-    """(arbitration fields, loop fields) of a --config file (module docstring)."""
+def read_config_file(
+    path: Path | None, option: str = "--config"
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(arbitration fields, loop fields) of a --config file (module docstring); `option`
+    names the option the file came from in the one-line errors."""
     if path is None:
         return {}, {}
     try:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise InputError(f"--config: file not found: {path}") from None
+        raise InputError(f"{option}: file not found: {path}") from None
     except (OSError, ValueError) as exc:
-        raise InputError(f"--config {path}: not a JSON file ({exc})") from None
+        raise InputError(f"{option} {path}: not a JSON file ({exc})") from None
     if not isinstance(data, dict):
-        raise ConfigError(f"--config {path}: expected a JSON object")
+        raise ConfigError(f"{option} {path}: expected a JSON object")
     if "arbitration" in data or "loop" in data:
         extra = sorted(set(data) - {"arbitration", "loop"} - {"objective", "note", "schema"})
         if extra:
-            raise ConfigError(f"--config {path}: unknown section(s): {', '.join(extra)}")
+            raise ConfigError(f"{option} {path}: unknown section(s): {', '.join(extra)}")
         arb, loop = data.get("arbitration", {}), data.get("loop", {})
         if not isinstance(arb, dict) or not isinstance(loop, dict):
-            raise ConfigError(f"--config {path}: sections must be JSON objects")
+            raise ConfigError(f"{option} {path}: sections must be JSON objects")
         return dict(arb), dict(loop)
     return dict(data), {}
 
@@ -129,12 +132,25 @@ def parse_params(items: list[str]) -> dict[str, Any]:
 def arbitration_config(args: argparse.Namespace) -> tuple[ArbitrationConfig, dict[str, Any]]:
     """The arbitration config of --config and --param, and the loop fields of --config
     (checked here, whether or not the command uses them)."""
-    arb, loop = read_config_file(args.config)
+    return config_from_file(args.config, args.param)
+
+
+def config_from_file(
+    path: Path | None, params: list[str], option: str = "--config"
+) -> tuple[ArbitrationConfig, dict[str, Any]]:
+    """The arbitration config of the file `path` (`read_config_file`; None: the defaults)
+    with the `--param` items `params` on top, and the file's loop fields (checked)."""
+    arb, loop = read_config_file(path, option)
     try:
-        cfg = ArbitrationConfig.from_dict({**arb, **parse_params(args.param)})
+        cfg = ArbitrationConfig.from_dict({**arb, **parse_params(params)})
         LoopConfig.from_dict({**loop, "arbitration": cfg.to_dict()})
     except TypeError as exc:
-        raise ConfigError(f"configuration: {exc}") from None
+        where = "configuration" if option == "--config" else f"{option} {path}"
+        raise ConfigError(f"{where}: {exc}") from None
+    except ConfigError as exc:
+        if option == "--config":
+            raise
+        raise ConfigError(f"{option} {path}: {exc}") from None
     return cfg, loop
 
 

@@ -8,7 +8,8 @@ writes DIR/summary.json, DIR/summary.md (shaped like the paper's Table I) and PN
 shaped like Fig. 5b-5d and 6 (`--example K` picks the trajectory of 5c, 5d and 6), and prints
 one JSON object on stdout. With `--sweep [AXIS=V1,V2,...]...` it runs every mode over a grid
 of the operator's world instead (`app/study/sweep.py`: Ray tasks on a local cluster or
-`--address`, `--resume`), writing DIR/sweep.json, sweep.md and sweep.png. The computation
+`--address`, `--resume`; `--sweep-design axes` for one impairment at a time, `--cell-configs
+DIR` for a configuration per cell), writing DIR/sweep.json, sweep.md and sweep.png. The computation
 is `app/study/core.py` (pure); this module is the edge: arguments, progress bar, files.
 docs/sim.md describes the study and the operator.
 """
@@ -24,11 +25,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from dsteleop.app.cli.options import add_config_options, arbitration_config
+from dsteleop.app.cli.options import add_config_options, arbitration_config, config_from_file
 from dsteleop.app.cli.progress import Progress, prepare_out_dir
 from dsteleop.app.cli.world_options import add_world_arguments, world_overrides
 from dsteleop.arbitration import Mode, registered
-from dsteleop.errors import ConfigError
+from dsteleop.errors import ConfigError, InputError
 
 log = logging.getLogger("dsteleop.sim")
 
@@ -55,6 +56,8 @@ class SimCommand:
     sweep: Any = None
     address: str | None = None
     resume: bool = False
+    design: str = "grid"
+    cell_configs: Any = None
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -113,6 +116,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         ),
     )
     parser.add_argument(
+        "--sweep-design",
+        choices=("grid", "axes"),
+        default=None,
+        help="with --sweep: grid (default: every cell) or axes (the world's centre and each "
+        "other level of one axis at a time: 7 cells of the default grid)",
+    )
+    parser.add_argument(
+        "--cell-configs",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="with --sweep: each cell runs with the configuration DIR/<cell>.json (a --config "
+        "file, e.g. made by scripts/tune_sweep.py); a cell without one is refused",
+    )
+    parser.add_argument(
         "--address",
         default=None,
         help="with --sweep: an existing Ray cluster (auto, HOST:PORT or ray://HOST:PORT); "
@@ -147,6 +165,8 @@ def command(args: argparse.Namespace) -> SimCommand:
         if args.modes is None
         else tuple(Mode.parse(s.strip()) for s in str(args.modes).split(","))
     )
+    if args.cell_configs is not None and args.config is not None:
+        raise ConfigError("--config and --cell-configs are mutually exclusive")
     arb, _ = arbitration_config(args)
     if args.operator not in OPERATORS:
         raise ConfigError(
@@ -162,8 +182,13 @@ def command(args: argparse.Namespace) -> SimCommand:
             from dsteleop.app.tune.cluster import parse_address
 
             parse_address(args.address)
-    elif args.address is not None or args.resume:
-        raise ConfigError("--address and --resume go with --sweep")
+    elif (
+        args.address is not None
+        or args.resume
+        or args.sweep_design is not None
+        or args.cell_configs is not None
+    ):
+        raise ConfigError("--address, --resume, --sweep-design and --cell-configs go with --sweep")
     trajectories = args.trajectories
     if trajectories is None:
         trajectories = 500 if sweep is not None else 1000
@@ -184,6 +209,14 @@ def command(args: argparse.Namespace) -> SimCommand:
         arbitration=arb,
         **extra,
     )
+    design = args.sweep_design or "grid"
+    cell_configs = None
+    if sweep is not None:
+        from dsteleop.app.study.sweep import centre, design_cells
+
+        cells = design_cells(sweep, design, centre(study))
+        if args.cell_configs is not None:
+            cell_configs = read_cell_configs(args.cell_configs, cells, args.param)
     return SimCommand(
         study=study,
         out=Path(args.out),
@@ -193,7 +226,44 @@ def command(args: argparse.Namespace) -> SimCommand:
         sweep=sweep,
         address=args.address,
         resume=bool(args.resume),
+        design=design,
+        cell_configs=cell_configs,
     )
+
+
+def read_cell_configs(
+    folder: Path, cells: list[tuple[float, ...]], params: list[str]
+) -> dict[str, Any]:
+    """Per cell name its `CellConfig` from `folder`/<cell>.json (read as a `--config` file,
+    with `--param` on top): every cell must have one, so none falls back to the defaults.
+
+    Raises:
+        InputError: no such folder, a cell without a file, an unreadable file (one line).
+        ConfigError: a file that is not a configuration (one line).
+    """
+    import hashlib
+
+    from dsteleop.app.study.sweep import CellConfig, cell_name
+
+    if not folder.is_dir():
+        raise InputError(f"--cell-configs: not a folder: {folder}")
+    names = [cell_name(c) for c in cells]
+    missing = [n for n in names if not (folder / f"{n}.json").is_file()]
+    if missing:
+        raise InputError(
+            f"--cell-configs {folder}: no {missing[0]}.json ({len(missing)} of {len(names)} "
+            "cells have no configuration; tune them with scripts/tune_sweep.py)"
+        )
+    out: dict[str, Any] = {}
+    for name in names:
+        path = folder / f"{name}.json"
+        arb, _ = config_from_file(path, params, "--cell-configs")
+        try:
+            digest = hashlib.sha256(path.read_bytes()).hexdigest()
+        except OSError as exc:
+            raise InputError(f"--cell-configs {path}: {exc}") from None
+        out[name] = CellConfig(path, digest, arb)
+    return out
 
 
 def run(args: argparse.Namespace) -> int:
@@ -217,6 +287,8 @@ def run(args: argparse.Namespace) -> int:
             cmd.resume,
             cmd.figures,
             show,
+            cmd.design,
+            cmd.cell_configs,
         )
     modes = ",".join(m.value for m in cfg.modes)
     log.info(

@@ -25,6 +25,13 @@ existing one at `--address`); each finished cell is written at once to DIR/cells
 (with the settings that define it), so a stopped sweep resumes where it was (`--resume`
 skips the cells whose file is there with the same settings). Nothing of the computation
 depends on which worker ran a cell or in what order.
+
+Designs (`DESIGNS`): `grid` runs every cell of the grid; `axes` only the cells that vary one
+impairment at a time from the centre, the world's own values (`centre`): the centre and each
+other level of each axis (7 cells of the default 3 x 3 x 3), for a study per level. By
+default every cell runs with the study's one arbitration; with `CellConfig`s
+(`--cell-configs DIR`) each cell runs with the configuration tuned for it, and its file and
+the file's SHA-256 are recorded with its results (scripts/tune_sweep.py makes them).
 """
 
 from __future__ import annotations
@@ -43,7 +50,7 @@ import numpy as np
 
 from dsteleop.app.operator.world import Impairments
 from dsteleop.app.study import core
-from dsteleop.arbitration import metrics
+from dsteleop.arbitration import ArbitrationConfig, metrics
 from dsteleop.errors import ConfigError, InputError
 
 SCHEMA = "dsteleop.sim_sweep/1"
@@ -62,6 +69,8 @@ FALLBACK_LEVELS: dict[str, tuple[float, float]] = {
 #: those present.
 SCALAR_MODES: tuple[str, ...] = ("S", "scalar")
 ALPHA = 0.05
+#: Which cells of the grid run (module docstring).
+DESIGNS: tuple[str, ...] = ("grid", "axes")
 
 
 @dataclass(frozen=True)
@@ -128,6 +137,67 @@ def parse_grid(specs: Sequence[str]) -> Grid:
 def cell_name(cell: Sequence[float]) -> str:
     """The cell's file name stem, e.g. `goal0.02_delay0.15_depth0`."""
     return "_".join(f"{axis}{v:g}" for axis, v in zip(AXES, cell, strict=True))
+
+
+def centre(cfg: core.SimConfig) -> tuple[float, ...]:
+    """The world's own (goal, delay, depth) (`cfg.world`): the cell the `axes` design varies
+    one impairment at a time from."""
+    return tuple(float(getattr(cfg.world, f)) for f in AXES.values())
+
+
+def design_cells(grid: Grid, design: str, middle: Sequence[float]) -> list[tuple[float, ...]]:
+    """The cells of `grid` that `design` runs (module docstring), in the grid's order.
+
+    Args:
+        grid: the levels.
+        design: one of `DESIGNS`.
+        middle: the centre (`centre`) for `axes`.
+
+    Raises:
+        ConfigError: an unknown design, or (`axes`) a centre value that is not a level of its
+            axis (one line).
+    """
+    if design not in DESIGNS:
+        raise ConfigError(f"--sweep-design {design!r}: choose from {', '.join(DESIGNS)}")
+    cells = grid.cells()
+    if design == "grid":
+        return cells
+    for axis, v in zip(AXES, middle, strict=True):
+        if v not in grid.levels[axis]:
+            levels = ", ".join(f"{x:g}" for x in grid.levels[axis])
+            raise ConfigError(
+                f"--sweep-design axes: the world's {axis} {v:g} (the centre) is not one of "
+                f"the axis's levels ({levels})"
+            )
+    return [c for c in cells if sum(a != b for a, b in zip(c, middle, strict=True)) <= 1]
+
+
+@dataclass(frozen=True)
+class CellConfig:
+    """The configuration one cell runs with (`--cell-configs DIR`).
+
+    Attributes:
+        path: the file it was read from (DIR/<cell>.json).
+        sha256: the hex SHA-256 of the file's bytes.
+        arbitration: the arbitration it gives (with any `--param` on top).
+    """
+
+    path: Path
+    sha256: str
+    arbitration: ArbitrationConfig
+
+    def record(self) -> dict[str, str]:
+        """What a cell's file and the summary record of it."""
+        return {"file": str(self.path), "sha256": self.sha256}
+
+
+def cell_study(
+    cfg: core.SimConfig, name: str, configs: dict[str, CellConfig] | None
+) -> core.SimConfig:
+    """The study of the cell `name`: `cfg`, with its own arbitration where `configs` has it."""
+    if configs is None:
+        return cfg
+    return dataclasses.replace(cfg, arbitration=configs[name].arbitration)
 
 
 def with_world(cfg: core.SimConfig, cell: Sequence[float]) -> core.SimConfig:
@@ -214,6 +284,8 @@ def summarise_cell(data: dict[str, Any]) -> dict[str, Any]:
         "best_mode": best(per),
         "seconds": data.get("seconds"),
     }
+    if "configuration" in data:
+        out["configuration"] = data["configuration"]
     scalar = best(m for m in SCALAR_MODES if m in per)
     out["best_scalar"] = scalar
     if "DS" in per and scalar is not None:
@@ -255,29 +327,41 @@ def cells_dir(out: Path) -> Path:
 
 
 def load_done(
-    out: Path, cfg: core.SimConfig, cells: Sequence[tuple[float, ...]]
+    out: Path,
+    cfg: core.SimConfig,
+    cells: Sequence[tuple[float, ...]],
+    configs: dict[str, CellConfig] | None = None,
 ) -> dict[str, dict[str, Any]]:
-    """The cells of `cells` already in DIR/cells with the same settings.
+    """The cells of `cells` already in DIR/cells with the same settings (each cell's own
+    arbitration, `cell_study`) and, with `configs`, from the same configuration file.
 
     Raises:
-        InputError: a cell file is unreadable, or holds other settings (one line).
+        InputError: a cell file is unreadable, or holds other settings or another
+            configuration (one line).
     """
-    want = settings(cfg)
     done = {}
     for cell in cells:
-        path = cells_dir(out) / f"{cell_name(cell)}.json"
+        name = cell_name(cell)
+        path = cells_dir(out) / f"{name}.json"
         if not path.exists():
             continue
         try:
             data = json.loads(path.read_text())
         except (OSError, ValueError) as exc:
             raise InputError(f"--resume: cannot read {path}: {exc}") from None
-        if data.get("settings") != want:
+        if data.get("settings") != settings(cell_study(cfg, name, configs)):
             raise InputError(
                 f"--resume: {path} was computed with other settings (trajectories, seed, modes, "
                 "operator or arbitration); use a new --out"
             )
-        done[cell_name(cell)] = data
+        record = None if configs is None else configs[name].record()
+        if data.get("configuration") != record:
+            had = data.get("configuration") or {"file": "one configuration for every cell"}
+            raise InputError(
+                f"--resume: {path} was computed with another configuration ({had.get('file')}); "
+                "use a new --out"
+            )
+        done[name] = data
     return done
 
 
@@ -300,9 +384,11 @@ def run_sweep(
     out: Path,
     executor: Callable[[], Any],
     on_cell: Callable[[str, bool], None] | None = None,
+    design: str = "grid",
+    configs: dict[str, CellConfig] | None = None,
 ) -> SweepRun:
-    """Run the cells of `grid` not yet in DIR/cells, write each as it finishes, and return
-    the summary of every cell.
+    """Run the cells of `design` over `grid` not yet in DIR/cells, write each as it
+    finishes, and return the summary of every cell.
 
     Args:
         cfg: the study (its trajectories, seed, modes, operator and arbitration).
@@ -311,11 +397,18 @@ def run_sweep(
         executor: makes the task executor (`RayExecutor`) when a cell needs computing; it
             is closed when the cells are done.
         on_cell: called with each cell's name and whether it was computed (False: resumed).
+        design: which cells run (`design_cells`).
+        configs: per cell name its configuration (every cell of the design has one); None:
+            every cell runs with `cfg.arbitration`.
     """
     t0 = time.perf_counter()
-    cells = grid.cells()
+    cells = design_cells(grid, design, centre(cfg))
+    if configs is not None:
+        missing = [cell_name(c) for c in cells if cell_name(c) not in configs]
+        if missing:
+            raise InputError(f"no configuration for cell {missing[0]} ({len(missing)} missing)")
     cells_dir(out).mkdir(parents=True, exist_ok=True)
-    done = load_done(out, cfg, cells)
+    done = load_done(out, cfg, cells, configs)
     for name in done:
         if on_cell is not None:
             on_cell(name, False)
@@ -330,8 +423,13 @@ def run_sweep(
         with executor() as ex:
             start_s = time.perf_counter() - t1
             cluster = ex.describe()
-            shared = ex.share(cfg)
-            pending = {ex.submit(cell_task, shared, c): c for c in todo}
+            if configs is None:
+                shared = ex.share(cfg)
+                pending = {ex.submit(cell_task, shared, c): c for c in todo}
+            else:
+                pending = {
+                    ex.submit(cell_task, cell_study(cfg, cell_name(c), configs), c): c for c in todo
+                }
             while pending:
                 for h in ex.ready(list(pending), 1.0):
                     cell = pending.pop(h)
@@ -341,6 +439,8 @@ def run_sweep(
                     except TaskError as exc:
                         failed[name] = str(exc)
                         continue
+                    if configs is not None:
+                        data["configuration"] = configs[name].record()
                     _write_atomic(cells_dir(out) / f"{name}.json", data)
                     done[name] = data
                     if on_cell is not None:
@@ -367,6 +467,16 @@ def run_sweep(
         "config": settings(cfg),
         "world": cfg.world.to_dict(),
     }
+    if design != "grid":
+        summary["design"] = design
+        summary["centre"] = dict(zip(AXES.values(), centre(cfg), strict=True))
+    if configs is not None:
+        # Each cell has its own arbitration (its file and hash per cell, the parameters in
+        # DIR/cells/<cell>.json): the study's one is none of them.
+        config = settings(cfg)
+        config.pop("arbitration", None)
+        summary["config"] = config
+        summary["cell_configs"] = {cell_name(c): configs[cell_name(c)].record() for c in cells}
     return SweepRun(summary, failed)
 
 
@@ -405,10 +515,31 @@ def markdown(summary: dict[str, Any]) -> str:
         "",
         f"Counts: {', '.join(f'{k} {v}' for k, v in summary['counts'].items())}.",
         "",
+    ]
+    if "design" in summary:
+        c = summary["centre"]
+        lines += [
+            f"Design: {summary['design']}: the centre (goal {c['goal_sigma_m']:g} m, delay "
+            f"{c['delay_s']:g} s, depth {c['depth_sigma_m']:g} m) and each other level of one "
+            "axis at a time.",
+            "",
+        ]
+    configs = "cell_configs" in summary
+    if configs:
+        lines += [
+            "Each cell ran with its own configuration (file, first 12 hex digits of its "
+            "SHA-256; the parameters in cells/<cell>.json).",
+            "",
+        ]
+    lines += [
         "| goal sigma [m] | delay [s] | depth sigma [m] | "
         + " | ".join(modes)
-        + " | best | DS - best scalar [95 % CI] | McNemar p (exact / mid) | verdict |",
-        "| --- | --- | --- |" + " --- |" * len(modes) + " --- | --- | --- | --- |",
+        + " | best | DS - best scalar [95 % CI] | McNemar p (exact / mid) | verdict |"
+        + (" configuration |" if configs else ""),
+        "| --- | --- | --- |"
+        + " --- |" * len(modes)
+        + " --- | --- | --- | --- |"
+        + (" --- |" if configs else ""),
     ]
     for c in summary["cells"]:
         g, d, z = (c["cell"][f] for f in AXES.values())
@@ -425,6 +556,9 @@ def markdown(summary: dict[str, Any]) -> str:
             row.append(f"{x['success_difference']:+.3f} [{lo:+.3f}, {hi:+.3f}] vs {x['versus']}")
             row.append(f"{_p(x['mcnemar']['p_exact'])} / {_p(x['mcnemar']['p_mid'])}")
             row.append(x["verdict"])
+        if configs:
+            rec = c.get("configuration") or {"file": "n/a", "sha256": ""}
+            row.append(f"`{Path(rec['file']).name}` {rec['sha256'][:12]}")
         lines.append("| " + " | ".join(row) + " |")
     if summary["failed"]:
         lines += ["", "Failed cells:", ""]
@@ -513,8 +647,11 @@ def run_command(
     resume: bool,
     figures: bool,
     show_progress: bool,
+    design: str = "grid",
+    configs: dict[str, CellConfig] | None = None,
 ) -> int:
-    """Run the sweep, write DIR/sweep.json, sweep.md and sweep.png, print one JSON line.
+    """Run the sweep (the cells of `design`, each with its configuration of `configs` where
+    given, as `run_sweep`), write DIR/sweep.json, sweep.md and sweep.png, print one JSON line.
 
     Returns:
         0, or 2 when a cell failed (the outputs hold the others; the first error is raised
@@ -522,7 +659,9 @@ def run_command(
 
     Raises:
         InputError: DIR holds a sweep without `--resume` (or none with it), a stored cell has
-            other settings, the cluster cannot start or be reached, a cell failed.
+            other settings or another configuration, the cluster cannot start or be reached,
+            a cell failed.
+        ConfigError: the design does not fit the grid (`design_cells`).
     """
     import sys
 
@@ -531,7 +670,7 @@ def run_command(
 
     check_out(out, resume)
     check_reachable(address)
-    cells = grid.cells()
+    cells = design_cells(grid, design, centre(cfg))
     with Progress(len(cells), sys.stderr, show_progress, "sweep", "cells") as bar:
         run = run_sweep(
             cfg,
@@ -539,6 +678,8 @@ def run_command(
             out,
             lambda: RayExecutor(address, workers),
             lambda _name, _computed: bar.advance(),
+            design,
+            configs,
         )
     s = run.summary
     (out / "sweep.json").write_text(json.dumps(s, indent=2, allow_nan=False) + "\n")

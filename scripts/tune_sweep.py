@@ -1,0 +1,191 @@
+"""Tune every mode compared in the sweep for each cell of the operator's world, so the sweep's
+comparison uses, in each cell, parameters tuned for that cell (docs/sim.md, "The sweep").
+
+For each cell of the design (`--design axes`, the default: the world's centre and each other
+level of one axis at a time, 7 cells; `grid`: all 27), and for each mode M of `--modes`
+(default DS and scalar), it runs
+
+    dsteleop tune --objective study --mode M --metric success --trials N --trajectories T
+                  --study-seed 0 --holdout-trajectories 0 --workers W
+                  --goal-sigma G --delay D --depth-sigma S --out OUT/runs/<cell>/<M>
+
+(the same budget for every mode; tuning trajectories of seed 0; the cell's world as tune's
+world options, app/cli/world_options.py), then writes OUT/<cell>.json, the modes' best
+parameters merged into one `--config` file (as docs/tuned/both.json: DS's fields and the
+scalar baseline's `scalar.*`), and OUT/README.md with the exact commands run. A run whose
+best.json is already there is kept, so a stopped script continues where it was. Held-out
+judgement, on other people (seed 1):
+
+    dsteleop sim --sweep --sweep-design axes --cell-configs OUT --seed 1 --out DIR
+
+    .venv/bin/python scripts/tune_sweep.py --out docs/tuned/cells --trials 24 --workers 2
+
+The cells and their names come from app/study/sweep.py (`design_cells`, `cell_name`); the
+tuning runs go through the `dsteleop` command in subprocesses, so this script depends only
+on tune's options, not on its internals.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from dsteleop.app.study import core
+from dsteleop.app.study.sweep import AXES, DESIGNS, cell_name, centre, default_grid, design_cells
+
+#: The tune options that set a cell's world, in `AXES` order (app/cli/world_options.py).
+WORLD_OPTIONS: tuple[str, ...] = ("--goal-sigma", "--delay", "--depth-sigma")
+DEFAULT_MODES: tuple[str, ...] = ("DS", "scalar")
+
+
+def cells(design: str) -> list[tuple[float, ...]]:
+    """The cells of `design` over the sweep's default grid, around the default world: the
+    cells `dsteleop sim --sweep --sweep-design DESIGN` runs."""
+    return design_cells(default_grid(), design, centre(core.SimConfig()))
+
+
+def tune_command(
+    cell: Sequence[float], mode: str, out: Path, trials: int, trajectories: int, workers: int
+) -> list[str]:
+    """The `dsteleop tune` command line that tunes `mode` in the world of `cell` into `out`."""
+    world = [x for opt, v in zip(WORLD_OPTIONS, cell, strict=True) for x in (opt, f"{v:g}")]
+    return [
+        "dsteleop", "tune", "--objective", "study", "--mode", mode, "--metric", "success",
+        "--trials", str(trials), "--trajectories", str(trajectories), "--study-seed", "0",
+        "--holdout-trajectories", "0", "--workers", str(workers), *world,
+        "--out", str(out), "--no-progress", "--no-figures",
+    ]  # fmt: skip
+
+
+def merge_best(bests: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """One arbitration from the modes' best.json files: each mode's tuned parameters
+    (`objective.params`) over the base they share (every other field).
+
+    Args:
+        bests: per mode, its `dsteleop tune` best.json (in the order of `--modes`).
+
+    Raises:
+        ValueError: a file without `arbitration` or `objective.params`, two modes that tuned
+            one parameter to different values, or modes tuned from different bases.
+    """
+    tuned: dict[str, tuple[str, Any]] = {}
+    for mode, best in bests.items():
+        params = best.get("objective", {}).get("params")
+        if not isinstance(best.get("arbitration"), dict) or not isinstance(params, dict):
+            raise ValueError(f"{mode}: not a tune best.json (no arbitration or objective.params)")
+        for k, v in params.items():
+            if k in tuned and tuned[k][1] != v:
+                raise ValueError(f"{k} tuned by {tuned[k][0]} and {mode} to different values")
+            tuned[k] = (mode, v)
+    first, *_ = bests.values()
+    base = {k: v for k, v in first["arbitration"].items() if k not in tuned}
+    for mode, best in bests.items():
+        other = {k: v for k, v in best["arbitration"].items() if k not in tuned}
+        if other != base:
+            diff = sorted(k for k in base.keys() | other.keys() if base.get(k) != other.get(k))
+            raise ValueError(f"{mode} was tuned from another base ({', '.join(diff)})")
+    return {k: tuned[k][1] if k in tuned else v for k, v in first["arbitration"].items()}
+
+
+def cell_file(cell: Sequence[float], bests: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """OUT/<cell>.json: the merged arbitration, and per mode what tune found (a `--config`
+    file: `read_config_file` ignores `objective` and `note`)."""
+    world = dict(zip(AXES.values(), map(float, cell), strict=True))
+    return {
+        "arbitration": merge_best(bests),
+        "objective": {
+            m: {k: b["objective"].get(k) for k in ("statement", "trial", "value", "params")}
+            for m, b in bests.items()
+        },
+        "note": f"tuned by scripts/tune_sweep.py for the sweep's cell {cell_name(cell)} "
+        f"({json.dumps(world)}) on tuning trajectories of seed 0",
+    }
+
+
+def readme(commands: list[str], args: argparse.Namespace, n_cells: int, seconds: float) -> str:
+    """OUT/README.md: how the files were made and how to judge them on held-out people."""
+    lines = [
+        "# Configurations tuned per cell of the sweep",
+        "",
+        f"Made by `scripts/tune_sweep.py --design {args.design} --modes {args.modes} "
+        f"--trials {args.trials} --trajectories {args.trajectories} --workers {args.workers} "
+        f"--out {args.out}` ({time.strftime('%Y-%m-%d', time.gmtime())}, {seconds:.0f} s): "
+        f"{n_cells} cells, each mode tuned with the same budget on tuning trajectories of "
+        "seed 0 in the cell's world; `<cell>.json` merges the modes' best parameters (each "
+        "mode's own tuned fields over their shared defaults), `runs/<cell>/<mode>/` holds "
+        "each tuning study.",
+        "",
+        "Held-out judgement (other people, seed 1):",
+        "",
+        "```",
+        f"dsteleop sim --sweep --sweep-design {args.design} --cell-configs {args.out} "
+        "--seed 1 --out DIR",
+        "```",
+        "",
+        "The commands run (a run whose best.json was already there was kept, not rerun):",
+        "",
+        "```",
+        *commands,
+        "```",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--out", required=True, type=Path, help="folder of <cell>.json (created)")
+    p.add_argument("--design", choices=DESIGNS, default="axes", help="cells (default axes)")
+    p.add_argument("--modes", default=",".join(DEFAULT_MODES), help="tuned modes (DS,scalar)")
+    p.add_argument("--trials", type=int, default=24, help="tune trials per mode and cell (24)")
+    p.add_argument("--trajectories", type=int, default=200, help="tuning trajectories (200)")
+    p.add_argument("--workers", type=int, default=2, help="CPUs of tune's local cluster (2)")
+    p.add_argument("--dry-run", action="store_true", help="print the commands, run nothing")
+    args = p.parse_args(argv)
+    modes = [m.strip() for m in str(args.modes).split(",") if m.strip()]
+    if not modes or len(set(modes)) != len(modes):
+        p.error(f"--modes: a list of distinct modes, got {args.modes!r}")
+    for name in ("trials", "trajectories", "workers"):
+        if getattr(args, name) < 1:
+            p.error(f"--{name} must be >= 1, got {getattr(args, name)}")
+    program = Path(sys.executable).parent / "dsteleop"
+    t0 = time.perf_counter()
+    todo = cells(args.design)
+    commands: list[str] = []
+    for cell in todo:
+        name = cell_name(cell)
+        bests: dict[str, dict[str, Any]] = {}
+        for mode in modes:
+            run_dir = args.out / "runs" / name / mode
+            cmd = tune_command(cell, mode, run_dir, args.trials, args.trajectories, args.workers)
+            commands.append(shlex.join(cmd))
+            sys.stdout.write(shlex.join(cmd) + "\n")
+            sys.stdout.flush()
+            if args.dry_run:
+                continue
+            best = run_dir / "best.json"
+            if not best.exists():
+                done = subprocess.run([str(program), *cmd[1:]], check=False)
+                if done.returncode != 0:
+                    sys.stderr.write(f"tune_sweep: {name} {mode}: exit {done.returncode}\n")
+                    return 2
+            bests[mode] = json.loads(best.read_text())
+        if not args.dry_run:
+            args.out.mkdir(parents=True, exist_ok=True)
+            data = cell_file(cell, bests)
+            (args.out / f"{name}.json").write_text(json.dumps(data, indent=2) + "\n")
+    if not args.dry_run:
+        text = readme(commands, args, len(todo), time.perf_counter() - t0)
+        (args.out / "README.md").write_text(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
