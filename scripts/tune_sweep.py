@@ -52,13 +52,19 @@ def cells(design: str) -> list[tuple[float, ...]]:
 
 
 def tune_command(
-    cell: Sequence[float], mode: str, out: Path, trials: int, trajectories: int, workers: int
+    cell: Sequence[float],
+    mode: str,
+    out: Path,
+    budget: Sequence[str],
+    trajectories: int,
+    workers: int,
 ) -> list[str]:
-    """The `dsteleop tune` command line that tunes `mode` in the world of `cell` into `out`."""
+    """The `dsteleop tune` command line that tunes `mode` in the world of `cell` into `out`,
+    with the budget options `budget` (the same for every mode)."""
     world = [x for opt, v in zip(WORLD_OPTIONS, cell, strict=True) for x in (opt, f"{v:g}")]
     return [
         "dsteleop", "tune", "--objective", "study", "--mode", mode, "--metric", "success",
-        "--trials", str(trials), "--trajectories", str(trajectories), "--study-seed", "0",
+        *budget, "--trajectories", str(trajectories), "--study-seed", "0",
         "--holdout-trajectories", "0", "--workers", str(workers), *world,
         "--out", str(out), "--no-progress", "--no-figures",
     ]  # fmt: skip
@@ -115,7 +121,7 @@ def readme(commands: list[str], args: argparse.Namespace, n_cells: int, seconds:
         "# Configurations tuned per cell of the sweep",
         "",
         f"Made by `scripts/tune_sweep.py --design {args.design} --modes {args.modes} "
-        f"--trials {args.trials} --trajectories {args.trajectories} --workers {args.workers} "
+        f"{_budget(args)} --trajectories {args.trajectories} --workers {args.workers} "
         f"--out {args.out}` ({time.strftime('%Y-%m-%d', time.gmtime())}, {seconds:.0f} s): "
         f"{n_cells} cells, each mode tuned with the same budget on tuning trajectories of "
         "seed 0 in the cell's world; `<cell>.json` merges the modes' best parameters (each "
@@ -139,12 +145,31 @@ def readme(commands: list[str], args: argparse.Namespace, n_cells: int, seconds:
     return "\n".join(lines)
 
 
+def _budget(args: argparse.Namespace) -> str:
+    each = (
+        f"--trials {args.trials}"
+        if args.trials is not None
+        else f"--trials-per-param {args.trials_per_param}"
+    )
+    return f"{each} --widen-edges {args.widen_edges}"
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", required=True, type=Path, help="folder of <cell>.json (created)")
     p.add_argument("--design", choices=DESIGNS, default="axes", help="cells (default axes)")
     p.add_argument("--modes", default=",".join(DEFAULT_MODES), help="tuned modes (DS,scalar)")
-    p.add_argument("--trials", type=int, default=24, help="tune trials per mode and cell (24)")
+    each = p.add_mutually_exclusive_group()
+    each.add_argument("--trials", type=int, default=None, help="tune trials per mode and cell")
+    each.add_argument(
+        "--trials-per-param",
+        type=int,
+        default=None,
+        help="tune trials per searched parameter (default 4: DS 28, the scalar 8)",
+    )
+    p.add_argument(
+        "--widen-edges", type=int, default=2, help="tune's widening rounds (default 2)"
+    )
     p.add_argument("--trajectories", type=int, default=200, help="tuning trajectories (200)")
     p.add_argument("--workers", type=int, default=2, help="CPUs of tune's local cluster (2)")
     p.add_argument("--dry-run", action="store_true", help="print the commands, run nothing")
@@ -152,9 +177,19 @@ def main(argv: list[str] | None = None) -> int:
     modes = [m.strip() for m in str(args.modes).split(",") if m.strip()]
     if not modes or len(set(modes)) != len(modes):
         p.error(f"--modes: a list of distinct modes, got {args.modes!r}")
-    for name in ("trials", "trajectories", "workers"):
-        if getattr(args, name) < 1:
-            p.error(f"--{name} must be >= 1, got {getattr(args, name)}")
+    if args.trials is None and args.trials_per_param is None:
+        args.trials_per_param = 4
+    for name in ("trials", "trials_per_param", "trajectories", "workers"):
+        v = getattr(args, name)
+        if v is not None and v < 1:
+            p.error(f"--{name.replace('_', '-')} must be >= 1, got {v}")
+    if args.widen_edges < 0:
+        p.error(f"--widen-edges must be >= 0, got {args.widen_edges}")
+    budget = (
+        ["--trials", str(args.trials)]
+        if args.trials is not None
+        else ["--trials-per-param", str(args.trials_per_param)]
+    ) + ["--widen-edges", str(args.widen_edges)]
     program = Path(sys.executable).parent / "dsteleop"
     t0 = time.perf_counter()
     todo = cells(args.design)
@@ -164,7 +199,7 @@ def main(argv: list[str] | None = None) -> int:
         bests: dict[str, dict[str, Any]] = {}
         for mode in modes:
             run_dir = args.out / "runs" / name / mode
-            cmd = tune_command(cell, mode, run_dir, args.trials, args.trajectories, args.workers)
+            cmd = tune_command(cell, mode, run_dir, budget, args.trajectories, args.workers)
             commands.append(shlex.join(cmd))
             sys.stdout.write(shlex.join(cmd) + "\n")
             sys.stdout.flush()

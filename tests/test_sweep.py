@@ -321,7 +321,10 @@ def test_axes_design_varies_one_impairment_at_a_time_from_the_worlds_centre() ->
     ("extra", "message"),
     [
         (["--sweep-design", "axes", "--goal-sigma", "0.03"], "the world's goal 0.03 (the centre)"),
-        (["--cell-configs", "{tmp}", "--config", "docs/tuned/both.json"], "mutually exclusive"),
+        (
+            ["--cell-configs", "{tmp}", "--config", "tests/golden/tune-best/both.json"],
+            "mutually exclusive",
+        ),
         (["--cell-configs", "{tmp}/none"], "--cell-configs: not a folder"),
         (["--cell-configs", "{tmp}"], "no goal0_delay0.2_depth0.015.json (7 of 7 cells"),
         (["--cell-configs", "{tmp}", "--sweep-design", "grid"], "(27 of 27 cells"),
@@ -375,7 +378,7 @@ def _tune_sweep() -> Any:
     return module
 
 
-DOCS_TUNED = Path(__file__).resolve().parents[1] / "docs" / "tuned"
+DOCS_TUNED = Path(__file__).resolve().parent / "golden" / "tune-best"
 
 
 def test_tune_sweep_tunes_the_cells_the_sweep_runs_with_the_cells_world() -> None:
@@ -383,14 +386,16 @@ def test_tune_sweep_tunes_the_cells_the_sweep_runs_with_the_cells_world() -> Non
     g = sweep.default_grid()
     assert ts.cells("axes") == sweep.design_cells(g, "axes", sweep.centre(sc.SimConfig()))
     assert ts.cells("grid") == g.cells() and len(ts.cells("axes")) == 7
-    cmd = ts.tune_command((0.04, 0.2, 0.0), "scalar", Path("o/x"), 24, 200, 2)
+    budget = ["--trials-per-param", "4", "--widen-edges", "2"]
+    cmd = ts.tune_command((0.04, 0.2, 0.0), "scalar", Path("o/x"), budget, 200, 2)
     assert cmd[:2] == ["dsteleop", "tune"]
     opt = dict(zip(cmd[2::2], cmd[3::2], strict=False))
     assert opt["--mode"] == "scalar" and opt["--metric"] == "success"
     assert (opt["--goal-sigma"], opt["--delay"], opt["--depth-sigma"]) == ("0.04", "0.2", "0")
-    assert (opt["--trials"], opt["--trajectories"], opt["--study-seed"]) == ("24", "200", "0")
+    assert (opt["--trials-per-param"], opt["--widen-edges"]) == ("4", "2")
+    assert (opt["--trajectories"], opt["--study-seed"]) == ("200", "0")
     # The same budget for every mode: the commands differ only in the mode and the folder.
-    ds = ts.tune_command((0.04, 0.2, 0.0), "DS", Path("o/y"), 24, 200, 2)
+    ds = ts.tune_command((0.04, 0.2, 0.0), "DS", Path("o/y"), budget, 200, 2)
     assert [a for a, b in zip(cmd, ds, strict=True) if a != b] == ["scalar", "o/x"]
 
 
