@@ -167,9 +167,7 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="tune trials per searched parameter (default 4: DS 28, the scalar 8)",
     )
-    p.add_argument(
-        "--widen-edges", type=int, default=2, help="tune's widening rounds (default 2)"
-    )
+    p.add_argument("--widen-edges", type=int, default=2, help="tune's widening rounds (default 2)")
     p.add_argument("--trajectories", type=int, default=200, help="tuning trajectories (200)")
     p.add_argument("--workers", type=int, default=2, help="CPUs of tune's local cluster (2)")
     p.add_argument("--dry-run", action="store_true", help="print the commands, run nothing")
