@@ -50,7 +50,9 @@ def test_space_forms_and_grids() -> None:
     assert b.kind == "float" and b.grid(2) == (0.25, 4.0)
     c = parse_dimension("p=2,4,8")
     assert c.kind == "choice" and c.grid(2) == (2.0, 4.0, 8.0)
-    assert [x.name for x in parse_space([])] == ["kappa", "p", "q", "b", "window"]
+    assert [x.name for x in parse_space([])] == [
+        "kappa", "p", "q", "b", "window", "DS.cap_translation", "DS.cap_rotation",
+    ]  # fmt: skip
     assert [x.spec for x in parse_space([])] == list(DEFAULT_SPACE)
 
 

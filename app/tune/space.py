@@ -12,7 +12,8 @@ own parameter written `<mode>.<field>` (`scalar.cap`):
 Without `--space`, the tuned mode's own default space, stated next to the mode
 (`arbitration/modes/<mode>.py`, `ModeSpec.space`): for DS the paper's own list of
 hyper-parameters to tune (its limitation 1, eq (5) and (7) and the temporal window) over
-ranges about their defaults (`DEFAULT_SPACE`), for the scalar baseline its cap and scale.
+ranges about their defaults (`DEFAULT_SPACE`) and its two caps (translation, rotation) over
+the scalar's cap range, for the scalar baseline its cap and scale.
 
 Grid search (`--sampler grid`) needs finite values: a choice keeps its values, an integer
 range all its integers up to `points` of them, a range `points` values evenly spaced (log
