@@ -1,16 +1,22 @@
 """`dsteleop tune`: hyper-parameter studies of the arbitration, trials as Ray tasks.
 
-    dsteleop tune --objective study|sessions|both --trials N --out DIR [--mode M]
-                  [--space NAME=SPEC ...] [--metric agreement|cosine_distance|time_s|success]
+    dsteleop tune --objective study|sessions|both --trials N|--trials-per-param K --out DIR
+                  [--mode M] [--space NAME=SPEC ...] [--widen-edges N]
+                  [--metric agreement|cosine_distance|time_s|success]
                   [--no-constraint] [--sampler tpe|grid|random] [--seed K] [--grid-points K]
-                  [--trajectories N] [--study-seed S] [--sessions PATH ...]
+                  [--trajectories N] [--study-seed S] [world options of `dsteleop sim`]
+                  [--sessions PATH ...]
                   [--sessions-via path|store] [--holdout-trajectories M] [--holdout-seed S]
                   [--holdout-sessions PATH ...] [--address ray://HOST:PORT|auto|HOST:PORT]
                   [--workers N] [--config FILE.json] [--param NAME=VALUE ...] [--resume]
 
 `--mode M` tunes mode M (default DS; any registered mode but S, the reference every trial is
 paired with) over its own default space (stated next to the mode, `arbitration/modes/`)
-unless `--space` gives one, with the same trial budget whatever the mode.
+unless `--space` gives one. `--trials-per-param K` makes the budget K trials per searched
+parameter (a fair comparison of modes gives each the same K); the world options are
+`dsteleop sim`'s (app/cli/world_options.py), for the tuning and held-out trajectories
+alike. A best value on an edge of its range widens the range and runs the campaign again,
+up to `--widen-edges N` times (app/tune/edges.py); every edge of the final best is reported.
 
 Optuna asks for configurations, Ray runs their trials (a local cluster on this machine unless
 `--address` names one), results are told back as they arrive; DIR gets trials.csv, best.json,
