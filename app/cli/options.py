@@ -4,7 +4,9 @@
                          repeatable): run, serve, sim, replay
     --config FILE.json   a configuration file: an object of ArbitrationConfig fields, or
                          {"arbitration": {...}, "loop": {...}} (what `dsteleop tune` writes
-                         as best.json); --param applies on top of it
+                         as best.json, with its "objective", "world", "note" and
+                         "schema" as a record of the tuning, not applied: a command's own
+                         world options choose its world); --param applies on top of it
     loop options         --source, --mode, --utensil, --seed, --goal-noise, --input-delay,
                          --rate, --lost-policy, --history, --record, --record-video,
                          --rerun, --rerun-connect: run and serve
@@ -92,7 +94,9 @@ def read_config_file(
     if not isinstance(data, dict):
         raise ConfigError(f"{option} {path}: expected a JSON object")
     if "arbitration" in data or "loop" in data:
-        extra = sorted(set(data) - {"arbitration", "loop"} - {"objective", "note", "schema"})
+        extra = sorted(
+            set(data) - {"arbitration", "loop"} - {"objective", "world", "note", "schema"}
+        )
         if extra:
             raise ConfigError(f"{option} {path}: unknown section(s): {', '.join(extra)}")
         arb, loop = data.get("arbitration", {}), data.get("loop", {})
