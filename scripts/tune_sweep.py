@@ -122,7 +122,8 @@ def readme(commands: list[str], args: argparse.Namespace, n_cells: int, seconds:
         "",
         f"Made by `scripts/tune_sweep.py --design {args.design} --modes {args.modes} "
         f"{_budget(args)} --trajectories {args.trajectories} --workers {args.workers} "
-        f"--out {args.out}` ({time.strftime('%Y-%m-%d', time.gmtime())}, {seconds:.0f} s): "
+        + "".join(f"--reuse {r} " for r in args.reuse)
+        + f"--out {args.out}` ({time.strftime('%Y-%m-%d', time.gmtime())}, {seconds:.0f} s): "
         f"{n_cells} cells, each mode tuned with the same budget on tuning trajectories of "
         "seed 0 in the cell's world; `<cell>.json` merges the modes' best parameters (each "
         "mode's own tuned fields over their shared defaults), `runs/<cell>/<mode>/` holds "
@@ -170,11 +171,32 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--widen-edges", type=int, default=2, help="tune's widening rounds (default 2)")
     p.add_argument("--trajectories", type=int, default=200, help="tuning trajectories (200)")
     p.add_argument("--workers", type=int, default=2, help="CPUs of tune's local cluster (2)")
+    p.add_argument(
+        "--reuse",
+        action="append",
+        default=[],
+        metavar="MODE=DIR",
+        help="merge MODE as already tuned in DIR/runs/<cell>/MODE (not rerun): e.g. "
+        "DS=docs/tuned/cells with --modes scalar --trials 28, the scalar with DS's trial count",
+    )
     p.add_argument("--dry-run", action="store_true", help="print the commands, run nothing")
     args = p.parse_args(argv)
     modes = [m.strip() for m in str(args.modes).split(",") if m.strip()]
     if not modes or len(set(modes)) != len(modes):
         p.error(f"--modes: a list of distinct modes, got {args.modes!r}")
+    reused: dict[str, Path] = {}
+    for item in args.reuse:
+        mode, sep, folder = item.partition("=")
+        if not sep or not mode.strip() or not folder.strip():
+            p.error(f"--reuse needs MODE=DIR, got {item!r}")
+        if mode.strip() in modes or mode.strip() in reused:
+            p.error(f"--reuse {mode.strip()}: the mode is tuned here or reused twice")
+        reused[mode.strip()] = Path(folder.strip())
+    for mode, folder in reused.items():
+        for cell in cells(args.design):
+            best = folder / "runs" / cell_name(cell) / mode / "best.json"
+            if not best.is_file():
+                p.error(f"--reuse {mode}: no {best}")
     if args.trials is None and args.trials_per_param is None:
         args.trials_per_param = 4
     for name in ("trials", "trials_per_param", "trajectories", "workers"):
@@ -210,6 +232,10 @@ def main(argv: list[str] | None = None) -> int:
                     sys.stderr.write(f"tune_sweep: {name} {mode}: exit {done.returncode}\n")
                     return 2
             bests[mode] = json.loads(best.read_text())
+        for mode, folder in reused.items():
+            best = folder / "runs" / name / mode / "best.json"
+            bests[mode] = json.loads(best.read_text())
+            commands.append(f"# {mode}: reused from {best}")
         if not args.dry_run:
             args.out.mkdir(parents=True, exist_ok=True)
             data = cell_file(cell, bests)

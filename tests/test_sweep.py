@@ -447,6 +447,31 @@ def test_tune_sweep_dry_run_prints_every_command_and_writes_nothing(tmp_path: Pa
     assert not out.exists()
 
 
+def test_tune_sweep_reuses_a_mode_tuned_elsewhere_and_refuses_a_missing_one(
+    tmp_path: Path,
+) -> None:
+    """`--reuse DS=DIR`: DS as tuned in DIR merged with the modes tuned here (the scalar given
+    DS's trial count); its runs are read, not rerun; a missing run is one line, exit 2."""
+    ts = _tune_sweep()
+    bests = {m: json.loads((DOCS_TUNED / f"{m}.json").read_text()) for m in ("DS", "scalar")}
+    elsewhere, out = tmp_path / "cells", tmp_path / "equal"
+    for cell in ts.cells("axes"):
+        for root, mode in ((elsewhere, "DS"), (out, "scalar")):
+            run = root / "runs" / sweep.cell_name(cell) / mode
+            run.mkdir(parents=True)
+            (run / "best.json").write_text(json.dumps(bests[mode]))
+    args = ["--out", str(out), "--modes", "scalar", "--trials", "28"]
+    assert ts.main([*args, "--reuse", f"DS={elsewhere}"]) == 0
+    data = json.loads((out / "goal0.02_delay0.2_depth0.015.json").read_text())
+    assert data["arbitration"] == ts.merge_best(bests)
+    assert set(data["objective"]) == {"scalar", "DS"}
+    assert f"--reuse DS={elsewhere}" in (out / "README.md").read_text()
+    (elsewhere / "runs" / "goal0_delay0.2_depth0.015" / "DS" / "best.json").unlink()
+    with pytest.raises(SystemExit) as exc:
+        ts.main([*args, "--reuse", f"DS={elsewhere}"])
+    assert exc.value.code == 2
+
+
 # --- a real sweep with a configuration per cell, on a local Ray cluster of 2 workers -------------
 
 

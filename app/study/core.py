@@ -1450,6 +1450,9 @@ def summarise(res: StudyResult, figures: StudyResult | None = None) -> dict[str,
     }
     if "S" in res.modes and "DS" in res.modes:
         out["tests"]["S_vs_DS"] = compare(res.modes["S"], res.modes["DS"])
+    if "scalar" in res.modes and "DS" in res.modes:
+        # The tuned baseline with the same levers (docs/tuned/README.md) against DS.
+        out["tests"]["scalar_vs_DS"] = compare(res.modes["scalar"], res.modes["DS"])
     if cfg.grasps is not None and cfg.closed_loop:
         out["disagreement"] = disagreement_summary(res)
     return out

@@ -184,26 +184,9 @@ def markdown(summary: dict[str, Any]) -> str:
             "ended satisfied. A trial's time is its duration, so where most give up it is mostly "
             "the patience limit.",
         ]
-    if tests:
-        lines += [
-            "",
-            "## S vs DS (same trajectories)",
-            "",
-            "| Metric | Test | Statistic | p |",
-            "| --- | --- | --- | --- |",
-            "| success | N-1 chi-squared | "
-            f"{tests['success_n1_chi2']['chi2']:.3f} | {_p(tests['success_n1_chi2']['p_value'])} |",
-            _mcnemar_row(tests["success_mcnemar"]),
-        ]
-        for key, label in (
-            ("log_time", "log time"),
-            ("cosine_distance", "cosine distance (sum)"),
-            ("cosine_distance_per_action_mean", "cosine distance per action (labelled)"),
-            ("agreement", "agreement"),
-        ):
-            for test, tlabel in (("two_sample_t", "two-sample t"), ("paired_t", "paired t")):
-                r = tests[key][test]
-                lines.append(f"| {label} | {tlabel} | {r['t']:.3f} | {_p(r['p_value'])} |")
+    for pair, (first, second) in (("S_vs_DS", ("S", "DS")), ("scalar_vs_DS", ("scalar", "DS"))):
+        if pair in summary["tests"]:
+            lines += _tests_section(summary["tests"][pair], first, second)
     lines += _runs_table(summary)
     lines += _variants_table(summary)
     lines += _fig5_section(summary["fig5_fig6"])
@@ -363,9 +346,34 @@ def divergence_section(div: dict[str, Any], space: str) -> list[str]:
     return lines
 
 
-def _mcnemar_row(t: dict[str, Any]) -> str:
+def _tests_section(tests: dict[str, Any], first: str, second: str) -> list[str]:
+    """The tests between two modes on the same trajectories (`core.compare`)."""
+    lines = [
+        "",
+        f"## {first} vs {second} (same trajectories)",
+        "",
+        "| Metric | Test | Statistic | p |",
+        "| --- | --- | --- | --- |",
+        "| success | N-1 chi-squared | "
+        f"{tests['success_n1_chi2']['chi2']:.3f} | {_p(tests['success_n1_chi2']['p_value'])} |",
+        _mcnemar_row(tests["success_mcnemar"], first, second),
+    ]
+    for key, label in (
+        ("log_time", "log time"),
+        ("cosine_distance", "cosine distance (sum)"),
+        ("cosine_distance_per_action_mean", "cosine distance per action (labelled)"),
+        ("agreement", "agreement"),
+    ):
+        for test, tlabel in (("two_sample_t", "two-sample t"), ("paired_t", "paired t")):
+            r = tests[key][test]
+            lines.append(f"| {label} | {tlabel} | {r['t']:.3f} | {_p(r['p_value'])} |")
+    return lines
+
+
+def _mcnemar_row(t: dict[str, Any], first: str, second: str) -> str:
     return (
-        f"| success | McNemar (paired; {t['first_only']} S only, {t['second_only']} DS only) "
+        f"| success | McNemar (paired; {t['first_only']} {first} only, "
+        f"{t['second_only']} {second} only) "
         f"| exact p {_p(t['p_exact'])} | mid-p {_p(t['p_mid'])} |"
     )
 
