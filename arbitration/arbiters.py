@@ -94,6 +94,12 @@ class ArbitrationInput:
             operator); None if none.
         X_ref: the commanded reference eq (2) integrates from (the previous X_next); None
             for a kinematic plant, whose reference is X_current.
+        confidence: (6 + F,) or (..., 6 + F) the robot's confidence c_i in [0, 1] in each
+            dimension of X_goal (`belief.GoalBelief.confidence`; docs/METHOD.md §10), which
+            the modes that read it (`DSC`) temper with; None: 1 everywhere (a goal it is
+            told, trusted fully).
+        confidence_joint: a float or (...,) the confidence c_joint in [0, 1] in the whole
+            goal at once (the confidence-scaled scalar baseline reads it); None: 1.
     """
 
     X_human: HandState
@@ -106,6 +112,8 @@ class ArbitrationInput:
     dt: float
     history_term: Array | None = None
     X_ref: HandState | None = None
+    confidence: Array | None = None
+    confidence_joint: Array | float | None = None
 
 
 @dataclass(frozen=True)
@@ -357,7 +365,8 @@ class Arbiter:
         q = Quantities(
             alpha=out[0], P_human=out[1], P_robot=out[2], B=out[3], psi_human=out[4],
             psi_robot=out[5], U_human=out[6], U_robot=out[7], l1_goal_current_m=l1[0],
-            l1_goal_start_m=l1[1],
+            l1_goal_start_m=l1[1], confidence=_confidence_rows(inp.confidence, batch, D),
+            confidence_joint=_confidence_rows(inp.confidence_joint, batch, 0),
         )  # fmt: skip
         own = dict(state.own)
         for mode, idx in groups:
@@ -403,6 +412,36 @@ def leaky_reference(
     carried = integrate(last, U_human, dt)
     lead = diff(carried, inp.X_current) * math.exp(-dt / cfg.human_leak_s)
     return integrate(inp.X_current, lead, 1.0)
+
+
+def _confidence_rows(c: Array | float | None, batch: tuple[int, ...], D: int) -> Array:
+    """The tick's confidence as (M, D) (D = 0: the joint one, (M,)), read-only; None: ones.
+
+    Raises:
+        ConfigError: it does not broadcast to the tick's batch, or a value is not in [0, 1].
+    """
+    M = math.prod(batch)
+    tail = (D,) if D else ()
+    if c is None:
+        return _ones(M, D)
+    a = np.asarray(c, dtype=np.float64)
+    try:
+        a = np.broadcast_to(a, (*batch, *tail)).reshape(M, *tail)
+    except ValueError:
+        what = "confidence" if D else "confidence_joint"
+        raise ConfigError(f"{what} of shape {a.shape} for a tick of batch {batch}") from None
+    if not ((a >= 0.0) & (a <= 1.0)).all():  # NaN fails too
+        what = "confidence" if D else "confidence_joint"
+        raise ConfigError(f"{what} must be in [0, 1]")
+    return a
+
+
+@functools.lru_cache(maxsize=16)
+def _ones(M: int, D: int) -> Array:
+    """(M, D) ones (D = 0: (M,)), read-only (cached: the confidence of a told goal)."""
+    out = np.ones((M, D) if D else (M,))
+    out.flags.writeable = False
+    return out
 
 
 #: Rows of the kernel's scratch array of differences.

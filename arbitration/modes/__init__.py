@@ -22,7 +22,9 @@ from dsteleop.arbitration.modes.base import ModeSpec, Quantities, check_range
 from dsteleop.errors import ConfigError
 
 #: The built-in modes, one module of this package each, in the order lists show them.
-BUILTIN: tuple[str, ...] = ("ds", "standard", "manual", "autonomous", "scalar")
+BUILTIN: tuple[str, ...] = (
+    "ds", "standard", "manual", "autonomous", "scalar", "dsc", "conf_scalar",
+)  # fmt: skip
 
 _SPECS: dict[str, ModeSpec] = {}
 _MODES: dict[str, Mode] = {}
@@ -53,6 +55,8 @@ class Mode(str, metaclass=_Registered):
     MANUAL: ClassVar[Mode]
     AUTONOMOUS: ClassVar[Mode]
     SCALAR: ClassVar[Mode]
+    DSC: ClassVar[Mode]
+    CONF_SCALAR: ClassVar[Mode]
 
     __slots__ = ()
 

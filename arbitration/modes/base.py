@@ -55,6 +55,9 @@ class Quantities(NamedTuple):
         l1_goal_current_m: (M,) |p_goal - p_current|_1, the robot's position [m].
         l1_goal_start_m: (M,) max(|p_goal - p_start|_1, alloc_floor_m), eq (3)'s
             denominator [m].
+        confidence: (M, 6 + F) the robot's confidence c_i in each dimension of its goal, in
+            [0, 1] (`ArbitrationInput.confidence`; ones for a goal it is told), read-only.
+        confidence_joint: (M,) its confidence in the whole goal at once, in [0, 1], read-only.
     """
 
     alpha: Array
@@ -67,6 +70,8 @@ class Quantities(NamedTuple):
     U_robot: Array
     l1_goal_current_m: Array
     l1_goal_start_m: Array
+    confidence: Array
+    confidence_joint: Array
 
 
 class ModeState(Protocol):

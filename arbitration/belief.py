@@ -1,0 +1,292 @@
+"""A belief over K candidate goals from the person's motion, and the robot's confidence in
+each dimension of the goal it then seeks (docs/METHOD.md §10).
+
+Candidates. Goal g (g = 1..K) is a pose in the arbitration's 6 + F dimensions, `goal_g`,
+with a pose uncertainty per dimension, `sigma_g,i` (the robot's perception error of that
+goal along each axis, anisotropic: a camera's depth error is larger than its lateral one),
+and a prior probability `prior_g`. Every dimension i has a scale `s_i`, the tolerance the
+task asks for (success radius [m], heading tolerance [rad], openness), which makes the
+dimensions commensurable.
+
+Belief (MaxEnt / Boltzmann-rational person, Dragan & Srinivasa 2013, Javdani et al.
+2015/2018). The person moving from x to x' towards goal g pays the cost of the motion and
+is left with the cost-to-go V_g(x'); the likelihood of that motion under goal g is
+exp(-beta * (C(x, x') + V_g(x') - V_g(x))), the soft-min form of Javdani's
+`ada_assistance_policy` (the log-likelihood of the action is Q_g - V_g). The motion's own
+cost C is the same for every goal and cancels in the normalisation, so one tick is
+
+    V_g(x)   = sqrt( sum_i (d_g,i(x)^2 + sigma_g,i^2) / s_i^2 ),   d_g = diff(goal_g, x)
+    b'_g     = b_g * exp(-beta * (V_g(x_t) - V_g(x_{t-1}))) / Z            (Bayes' rule)
+    b_g     <- eps where b'_g < eps, the others rescaled to sum to 1        (the floor)
+
+with x the person's mapped hand (`X_human`), b the belief (starting at the prior) and Z the
+normaliser. V_g is the distance to the goal in units of the task's tolerances, softened by
+the goal's own uncertainty (the expected squared distance to a goal known up to sigma), so
+approaching an uncertain goal is weaker evidence once the hand is within its uncertainty, and
+V_g is smooth at the goal. Without the floor, the log-odds telescope: log b_g(t) = log prior_g
+- beta (V_g(x_t) - V_g(x_0)) + const, so tremor does not accumulate, only where the hand got
+to. The floor keeps every goal's probability at eps or above (the goals below it are set to
+eps, the others keep their ratios; repeated until none is below, at most K passes), as
+Javdani's `ada_assistance_policy` clips its goal probabilities, against the runaway
+confidence Aronson & Short warn of: the log-odds of any two goals stay within
+L = log((1 - (K - 1) eps) / eps), so a person who changes their mind is followed within a
+bounded time (about L / beta tolerances of progress towards the new goal). A belief within the bound is
+left as it is, so a hand that holds still keeps the belief it earned (mixing with the
+uniform every tick instead would fade it back to uniform in about 1 / (K eps) ticks).
+
+Per-dimension confidence. The robot seeks the belief's MAP candidate m (ties: the first).
+Its confidence in dimension i is the probability, under the belief and the goals'
+uncertainties, that the true goal lies within the task's tolerance s_i of the MAP goal in
+that dimension (the true goal g's coordinate ~ N(goal_g,i, sigma_g,i^2)):
+
+    W_m,g,i = P(|delta_g,i + n| < s_i),  n ~ N(0, sigma_g,i^2),  delta_g = diff(goal_g, goal_m)
+            = (erf((s_i - delta_g,i) / (sqrt 2 sigma_g,i)) + erf((s_i + delta_g,i) / (sqrt 2 sigma_g,i))) / 2
+    c_i     = sum_g b_g W_m,g,i                                               in [0, 1]
+
+so (a) where the likely candidates agree along x (|delta_g,x| << s_x), c_x is high even if
+y is undecided, and (b) a goal whose own uncertainty in i is large against s_i gives a low
+c_i even when the belief is certain (c_i = erf(s_i / (sqrt 2 sigma_m,i)) then). sigma = 0 is
+the indicator |delta| < s. The joint confidence, one scalar for the confidence-scaled
+scalar baseline (Dragan's form), is the same probability in every dimension at once, the
+axes independent: c_joint = sum_g b_g prod_i W_m,g,i. W depends only on the candidates, so
+it is tabulated once (K x K x D per row of candidates) and a tick's confidence is a lookup
+and a weighted sum.
+
+Batching: the belief is (n, K), one row per arbitrated row; the candidates are shared by
+every row (a batch (K,)) or one set per row (a batch (n, K)). Everything is numpy (K is a
+handful; one tick over 3 candidates is tens of microseconds, `dsteleop bench --only
+arbitration`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.special import erf
+
+from dsteleop.arbitration.modes.base import check_range
+from dsteleop.arbitration.se3 import HandState, diff
+from dsteleop.errors import ConfigError
+
+Array = NDArray[np.float64]
+
+NAME = "belief"
+
+
+@dataclass(frozen=True)
+class BeliefParams:
+    """The belief's parameters (module docstring); a value out of range is a ConfigError
+    naming it as `belief.<field>`.
+
+    Attributes:
+        beta: rationality, nats of evidence per tolerance of progress towards one goal
+            rather than another, in (0, 100]. Default 1: Dragan & Srinivasa's MaxEnt model
+            (beta absorbed in the cost, 1) with the cost in units of the task's tolerance.
+        epsilon: the floor on every goal's probability, in (0, 0.25] and below 1/K (checked
+            with the candidates). Default 0.01: the log-odds stay within log(98) ~ 4.6 for
+            K = 3, about 5 tolerances of progress at beta = 1.
+        scale_m: s of x, y, z [m], in (0, 1]. Default 0.02: the tasks' success radii (1-3 cm)
+            and eq (4)'s floor `alloc_floor_m`.
+        scale_rad: s of the three rotation dimensions [rad], in (0, pi]. Default 0.2: the
+            heading tolerance of the tasks (about 11 deg).
+        scale_openness: s of each finger's openness, in (0, 1]. Default 0.1 (eq (4)'s
+            `alloc_floor_openness`).
+    """
+
+    beta: float = 1.0
+    epsilon: float = 0.01
+    scale_m: float = 0.02
+    scale_rad: float = 0.2
+    scale_openness: float = 0.1
+
+    def __post_init__(self) -> None:
+        check_range(NAME, "beta", self.beta, 0.0, 100.0)
+        check_range(NAME, "epsilon", self.epsilon, 0.0, 0.25)
+        check_range(NAME, "scale_m", self.scale_m, 0.0, 1.0)
+        check_range(NAME, "scale_rad", self.scale_rad, 0.0, math.pi)
+        check_range(NAME, "scale_openness", self.scale_openness, 0.0, 1.0)
+
+    def scale(self, n_fingers: int) -> Array:
+        """(6 + F,) the tolerance s_i of every dimension."""
+        return np.concatenate(
+            [np.full(3, self.scale_m), np.full(3, self.scale_rad), np.full(n_fingers, self.scale_openness)]
+        )
+
+
+class Confidence(NamedTuple):
+    """What the arbitration reads from a belief for one tick, per row.
+
+    Attributes:
+        map_index: (n,) the MAP candidate of each row (the robot's goal).
+        per_dim: (n, 6 + F) c_i in [0, 1].
+        joint: (n,) c_joint in [0, 1].
+    """
+
+    map_index: NDArray[np.intp]
+    per_dim: Array
+    joint: Array
+
+
+@dataclass(frozen=True)
+class GoalBelief:
+    """K candidate goals and the belief's model over them (module docstring).
+
+    Attributes:
+        goals: the candidates' poses, a HandState of batch (K,) shared by every row, or
+            (n, K), one set per row.
+        sigma: the candidates' pose uncertainty per dimension, (K, 6 + F) or (n, K, 6 + F),
+            >= 0 (metres, radians, openness; the rotation entries are about the base axes).
+        params: the belief's parameters.
+        prior: (K,) or (n, K) prior probabilities (normalised here; default uniform), > 0.
+        names: one name per candidate (for messages and views), default "0".."K-1".
+    """
+
+    goals: HandState
+    sigma: Array
+    params: BeliefParams = field(default_factory=BeliefParams)
+    prior: Array | None = None
+    names: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        batch = self.goals.batch
+        if len(batch) not in (1, 2) or batch[-1] < 1:
+            raise ConfigError(f"belief: goals need a batch (K,) or (n, K), got {batch}")
+        K, D = batch[-1], 6 + self.goals.n_fingers
+        sigma = np.asarray(self.sigma, dtype=np.float64)
+        if sigma.shape not in ((K, D), (*batch, D)):
+            raise ConfigError(f"belief: sigma must be ({K}, {D}) or {(*batch, D)}, got {sigma.shape}")
+        if not np.isfinite(sigma).all() or (sigma < 0).any():
+            raise ConfigError("belief: sigma must be finite and >= 0")
+        if K * self.params.epsilon >= 1.0:
+            raise ConfigError(
+                f"belief.epsilon must be below 1/K = {1.0 / K:.3g} for K = {K} candidates, "
+                f"got {self.params.epsilon!r}"
+            )
+        prior = np.full(K, 1.0 / K) if self.prior is None else np.asarray(self.prior, float)
+        if prior.shape not in ((K,), batch) or not np.isfinite(prior).all() or (prior <= 0).any():
+            raise ConfigError(f"belief: prior must be ({K},) or {batch}, finite and > 0")
+        if self.names and len(self.names) != K:
+            raise ConfigError(f"belief: {len(self.names)} names for {K} candidates")
+        prior = prior / prior.sum(axis=-1, keepdims=True)
+        rows = batch[0] if len(batch) == 2 else 1
+        goals = self.goals if len(batch) == 2 else _with_rows(self.goals)
+        sigma = np.broadcast_to(sigma, (rows, K, D))
+        object.__setattr__(self, "_prior", prior)
+        object.__setattr__(self, "_goals", goals)  # batch (rows, K)
+        object.__setattr__(self, "_sigma2_over_s2", (sigma / self.scale) ** 2)
+        object.__setattr__(self, "_table", _agreement(goals, sigma, self.scale))
+
+    @property
+    def K(self) -> int:
+        return int(self.goals.batch[-1])
+
+    @property
+    def dims(self) -> int:
+        return 6 + self.goals.n_fingers
+
+    @property
+    def scale(self) -> Array:
+        """(6 + F,) the tolerance s_i of every dimension."""
+        return self.params.scale(self.goals.n_fingers)
+
+    @property
+    def agreement(self) -> Array:
+        """(rows, K, K, 6 + F) W_m,g,i of the module docstring (rows: 1 or n)."""
+        table: Array = self.__dict__["_table"]
+        return table
+
+    def candidate_index(self, name: str) -> int:
+        """The index of the candidate `name`; an unknown name is a ConfigError listing them."""
+        names = self.names or tuple(str(k) for k in range(self.K))
+        if name not in names:
+            raise ConfigError(f"unknown candidate {name!r} (candidates: {', '.join(names)})")
+        return names.index(name)
+
+    def initial(self, n: int) -> Array:
+        """(n, K) the belief before any motion: the prior, floored."""
+        prior = np.broadcast_to(self.__dict__["_prior"], (n, self.K))
+        return self._floor(prior)
+
+    def cost_to_go(self, X: HandState) -> Array:
+        """(n, K) V_g(x) of the module docstring, for the states X of batch (n,)."""
+        goals: HandState = self.__dict__["_goals"]
+        X1 = HandState(X.position[:, None], X.rotation[:, None], X.openness[:, None])
+        d = diff(goals, X1) / self.scale  # (n, K, D) by broadcasting (rows, K) with (n, 1)
+        return np.sqrt(np.einsum("nkd,nkd->nk", d, d) + self.__dict__["_sigma2_over_s2"].sum(-1))
+
+    def update(self, belief: Array, X_human: HandState, X_human_prev: HandState) -> Array:
+        """One tick of Bayes' rule and the floor (module docstring): the new (n, K) belief
+        after the person moved from X_human_prev to X_human (batch (n,) each)."""
+        b = np.asarray(belief, dtype=np.float64)
+        if b.ndim != 2 or b.shape[1] != self.K:
+            raise ConfigError(f"belief of shape {b.shape} for {self.K} candidates")
+        both = HandState(
+            np.stack([X_human.position, X_human_prev.position]).reshape(-1, 3),
+            np.stack([X_human.rotation, X_human_prev.rotation]).reshape(-1, 3, 3),
+            np.stack([X_human.openness, X_human_prev.openness]).reshape(-1, X_human.n_fingers),
+        )
+        V = self.cost_to_go(both).reshape(2, -1, self.K)
+        log_b = np.log(b) - self.params.beta * (V[0] - V[1])
+        log_b -= log_b.max(axis=1, keepdims=True)
+        post = np.exp(log_b)
+        post /= post.sum(axis=1, keepdims=True)
+        return self._floor(post)
+
+    def confidence(self, belief: Array) -> Confidence:
+        """The MAP candidate, c_i and c_joint of each row (module docstring)."""
+        b = np.asarray(belief, dtype=np.float64)
+        m = np.argmax(b, axis=1)
+        table = self.agreement
+        rows = np.arange(b.shape[0]) if table.shape[0] > 1 else np.zeros(b.shape[0], np.intp)
+        W = table[rows, m]  # (n, K, D): W_m,g,i of each row's MAP m
+        per_dim = np.einsum("nk,nkd->nd", b, W)
+        joint = np.einsum("nk,nk->n", b, W.prod(axis=2))
+        return Confidence(m, np.clip(per_dim, 0.0, 1.0), np.clip(joint, 0.0, 1.0))
+
+    def goal_of(self, index: NDArray[np.intp]) -> HandState:
+        """The poses (batch (n,)) of candidate `index[r]` for each row r: the robot's X_goal."""
+        goals: HandState = self.__dict__["_goals"]
+        idx = np.asarray(index, dtype=np.intp)
+        rows = np.arange(idx.shape[0]) if goals.batch[0] > 1 else np.zeros(idx.shape[0], np.intp)
+        return HandState(
+            goals.position[rows, idx], goals.rotation[rows, idx], goals.openness[rows, idx]
+        )
+
+    def _floor(self, b: Array) -> Array:
+        """Every b_g >= eps, the others keeping their ratios (module docstring); a belief that
+        already satisfies it is unchanged (no drift without evidence)."""
+        eps = self.params.epsilon
+        out = np.asarray(b, dtype=np.float64)
+        low = np.zeros(out.shape, dtype=bool)
+        for _ in range(self.K):  # each pass floors at least one more goal, or ends
+            now = low | (out < eps)
+            if (now == low).all():
+                break
+            low = now
+            rest = np.where(low, 0.0, out)
+            share = (1.0 - eps * low.sum(axis=1, keepdims=True)) / rest.sum(axis=1, keepdims=True)
+            out = np.where(low, eps, rest * share)
+        return out
+
+
+def _with_rows(X: HandState) -> HandState:
+    """A (K,) state as (1, K)."""
+    return HandState(X.position[None], X.rotation[None], X.openness[None])
+
+
+def _agreement(goals: HandState, sigma: Array, scale: Array) -> Array:
+    """(rows, K, K, D) W_m,g,i = P(|diff(goal_g, goal_m)_i + n| < s_i), n ~ N(0, sigma_g,i^2)."""
+    rows, K = goals.batch
+    G_m = HandState(goals.position[:, :, None], goals.rotation[:, :, None], goals.openness[:, :, None])
+    G_g = HandState(goals.position[:, None], goals.rotation[:, None], goals.openness[:, None])
+    delta = diff(G_g, G_m)  # (rows, K_m, K_g, D)
+    sig = np.broadcast_to(sigma[:, None], delta.shape)
+    inside = (np.abs(delta) < scale).astype(np.float64)  # sigma = 0: the indicator
+    safe = np.where(sig > 0, sig, 1.0) * math.sqrt(2.0)
+    smooth = 0.5 * (erf((scale - delta) / safe) + erf((scale + delta) / safe))
+    out: Array = np.where(sig > 0, smooth, inside)
+    return out
