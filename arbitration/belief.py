@@ -30,8 +30,8 @@ eps, the others keep their ratios; repeated until none is below, at most K passe
 Javdani's `ada_assistance_policy` clips its goal probabilities, against the runaway
 confidence Aronson & Short warn of: the log-odds of any two goals stay within
 L = log((1 - (K - 1) eps) / eps), so a person who changes their mind is followed within a
-bounded time (about L / beta tolerances of progress towards the new goal). A belief within the bound is
-left as it is, so a hand that holds still keeps the belief it earned (mixing with the
+bounded time (about L / beta tolerances of progress towards the new goal). A belief within
+the bound is left as it is, so a hand that holds still keeps the belief it earned (mixing with the
 uniform every tick instead would fade it back to uniform in about 1 / (K eps) ticks).
 
 Per-dimension confidence. The robot seeks the belief's MAP candidate m (ties: the first).
@@ -40,7 +40,7 @@ uncertainties, that the true goal lies within the task's tolerance s_i of the MA
 that dimension (the true goal g's coordinate ~ N(goal_g,i, sigma_g,i^2)):
 
     W_m,g,i = P(|delta_g,i + n| < s_i),  n ~ N(0, sigma_g,i^2),  delta_g = diff(goal_g, goal_m)
-            = (erf((s_i - delta_g,i) / (sqrt 2 sigma_g,i)) + erf((s_i + delta_g,i) / (sqrt 2 sigma_g,i))) / 2
+            = (erf((s_i - delta_g,i) / r) + erf((s_i + delta_g,i) / r)) / 2,  r = sqrt(2) sigma_g,i
     c_i     = sum_g b_g W_m,g,i                                               in [0, 1]
 
 so (a) where the likely candidates agree along x (|delta_g,x| << s_x), c_x is high even if
@@ -69,7 +69,7 @@ from numpy.typing import NDArray
 from scipy.special import erf
 
 from dsteleop.arbitration.modes.base import check_range
-from dsteleop.arbitration.se3 import HandState, diff
+from dsteleop.arbitration.se3 import HandState, diff, log_relative
 from dsteleop.errors import ConfigError
 
 Array = NDArray[np.float64]
@@ -113,7 +113,11 @@ class BeliefParams:
     def scale(self, n_fingers: int) -> Array:
         """(6 + F,) the tolerance s_i of every dimension."""
         return np.concatenate(
-            [np.full(3, self.scale_m), np.full(3, self.scale_rad), np.full(n_fingers, self.scale_openness)]
+            [
+                np.full(3, self.scale_m),
+                np.full(3, self.scale_rad),
+                np.full(n_fingers, self.scale_openness),
+            ]
         )
 
 
@@ -158,7 +162,9 @@ class GoalBelief:
         K, D = batch[-1], 6 + self.goals.n_fingers
         sigma = np.asarray(self.sigma, dtype=np.float64)
         if sigma.shape not in ((K, D), (*batch, D)):
-            raise ConfigError(f"belief: sigma must be ({K}, {D}) or {(*batch, D)}, got {sigma.shape}")
+            raise ConfigError(
+                f"belief: sigma must be ({K}, {D}) or {(*batch, D)}, got {sigma.shape}"
+            )
         if not np.isfinite(sigma).all() or (sigma < 0).any():
             raise ConfigError("belief: sigma must be finite and >= 0")
         if K * self.params.epsilon >= 1.0:
@@ -177,7 +183,7 @@ class GoalBelief:
         sigma = np.broadcast_to(sigma, (rows, K, D))
         object.__setattr__(self, "_prior", prior)
         object.__setattr__(self, "_goals", goals)  # batch (rows, K)
-        object.__setattr__(self, "_sigma2_over_s2", (sigma / self.scale) ** 2)
+        object.__setattr__(self, "_sigma2_over_s2_sum", ((sigma / self.scale) ** 2).sum(-1))
         object.__setattr__(self, "_table", _agreement(goals, sigma, self.scale))
 
     @property
@@ -214,9 +220,14 @@ class GoalBelief:
     def cost_to_go(self, X: HandState) -> Array:
         """(n, K) V_g(x) of the module docstring, for the states X of batch (n,)."""
         goals: HandState = self.__dict__["_goals"]
-        X1 = HandState(X.position[:, None], X.rotation[:, None], X.openness[:, None])
-        d = diff(goals, X1) / self.scale  # (n, K, D) by broadcasting (rows, K) with (n, 1)
-        return np.sqrt(np.einsum("nkd,nkd->nk", d, d) + self.__dict__["_sigma2_over_s2"].sum(-1))
+        s = self.scale
+        # diff(goal_g, x) of every row and candidate, (n, K, ...) by broadcasting (rows, K)
+        # with (n, 1): each part squared over its tolerance.
+        dp = (goals.position - X.position[:, None]) / s[0]
+        dr = log_relative(goals.rotation, X.rotation[:, None]) / s[3]
+        dg = (goals.openness - X.openness[:, None]) / s[6:]
+        sq = (dp * dp).sum(-1) + (dr * dr).sum(-1) + (dg * dg).sum(-1)
+        return np.sqrt(sq + self.__dict__["_sigma2_over_s2_sum"])
 
     def update(self, belief: Array, X_human: HandState, X_human_prev: HandState) -> Array:
         """One tick of Bayes' rule and the floor (module docstring): the new (n, K) belief
@@ -224,13 +235,8 @@ class GoalBelief:
         b = np.asarray(belief, dtype=np.float64)
         if b.ndim != 2 or b.shape[1] != self.K:
             raise ConfigError(f"belief of shape {b.shape} for {self.K} candidates")
-        both = HandState(
-            np.stack([X_human.position, X_human_prev.position]).reshape(-1, 3),
-            np.stack([X_human.rotation, X_human_prev.rotation]).reshape(-1, 3, 3),
-            np.stack([X_human.openness, X_human_prev.openness]).reshape(-1, X_human.n_fingers),
-        )
-        V = self.cost_to_go(both).reshape(2, -1, self.K)
-        log_b = np.log(b) - self.params.beta * (V[0] - V[1])
+        step = self.cost_to_go(X_human) - self.cost_to_go(X_human_prev)
+        log_b = np.log(b) - self.params.beta * step
         log_b -= log_b.max(axis=1, keepdims=True)
         post = np.exp(log_b)
         post /= post.sum(axis=1, keepdims=True)
@@ -280,8 +286,9 @@ def _with_rows(X: HandState) -> HandState:
 
 def _agreement(goals: HandState, sigma: Array, scale: Array) -> Array:
     """(rows, K, K, D) W_m,g,i = P(|diff(goal_g, goal_m)_i + n| < s_i), n ~ N(0, sigma_g,i^2)."""
-    rows, K = goals.batch
-    G_m = HandState(goals.position[:, :, None], goals.rotation[:, :, None], goals.openness[:, :, None])
+    G_m = HandState(
+        goals.position[:, :, None], goals.rotation[:, :, None], goals.openness[:, :, None]
+    )
     G_g = HandState(goals.position[:, None], goals.rotation[:, None], goals.openness[:, None])
     delta = diff(G_g, G_m)  # (rows, K_m, K_g, D)
     sig = np.broadcast_to(sigma[:, None], delta.shape)

@@ -41,6 +41,9 @@ def test_quick_bench_prints_every_arbitration_figure() -> None:
     mixed = out["modes_batched"]  # every registered mode in one batch
     assert {"S", "DS", "manual", "autonomous", "scalar"} <= set(mixed["modes"])
     assert mixed["steps_per_s"] > 0 and mixed["call_ms_median"] > 0
+    assert {"DSC", "conf_scalar"} <= set(mixed["modes"])
+    belief = out["dsc_belief_step_us"]  # a tick with inference over 3 candidates
+    assert belief["n"] == 2000 and 0 < belief["median"] <= belief["p99"]
     for case in cases.values():
         assert case["steps_per_s"] > 0 and math.isfinite(case["call_ms_median"])
         # steps/s and the median call time are the same figure

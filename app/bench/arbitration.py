@@ -8,6 +8,10 @@
     modes_batched           1000 rows of 6 + 5 dims, random states, mixing every registered
                             mode row by row (as the simulation study steps its modes):
                             steps_per_s and call_ms_median
+    dsc_belief_step_us      one unbatched tick with goal inference, as the loop will run it:
+                            the belief over 3 candidates updated from the hand's motion, its
+                            confidence and MAP goal, then one DSC step (a batch of one, 6 + 5
+                            dims): median, p95, p99 [us]; target < 1000 us
 
 The headline figures use independent random states (the worst case: random rotations put some
 pairs near pi, and erfc is slowest for the large arguments unrelated states give). The batched
@@ -33,6 +37,7 @@ from dsteleop.arbitration import (
     so3_exp,
 )
 from dsteleop.arbitration.arbiters import Arbiter
+from dsteleop.arbitration.belief import GoalBelief
 
 
 def _states(rng: np.random.Generator, batch: tuple[int, ...], n_fingers: int) -> HandState:
@@ -104,7 +109,33 @@ def run(quick: bool = False) -> dict[str, Any]:
             "steps_per_s": round(batch / float(np.median(msamples))),
             "call_ms_median": round(float(np.median(msamples)) * 1e3, 3),
         },
+        "dsc_belief_step_us": percentiles_us(_belief_samples(rng, n_fingers, reps)),
     }
+
+
+def _belief_samples(rng: np.random.Generator, n_fingers: int, reps: int) -> list[float]:
+    """Seconds per tick of belief update + confidence + MAP goal + DSC step, 3 candidates."""
+    goals = _states(rng, (3,), n_fingers)
+    belief = GoalBelief(goals, np.full((3, 6 + n_fingers), 0.01))
+    arbiter = make_arbiter("DSC")
+    inputs = [_inputs(rng, (1,), n_fingers) for _ in range(min(reps, 500))]
+    b = belief.initial(1)
+    state = arbiter.initial_state(6 + n_fingers, (1,))
+    samples = []
+    for i in range(reps):
+        inp = inputs[i % len(inputs)]
+        t0 = time.perf_counter()
+        b = belief.update(b, inp.X_human, inp.X_human_prev)
+        conf = belief.confidence(b)
+        tick = ArbitrationInput(
+            X_human=inp.X_human, X_human_prev=inp.X_human_prev, X_human_start=inp.X_human_start,
+            X_current=inp.X_current, X_prev=inp.X_prev, X_start=inp.X_start,
+            X_goal=belief.goal_of(conf.map_index), dt=inp.dt, confidence=conf.per_dim,
+            confidence_joint=conf.joint,
+        )  # fmt: skip
+        state, _ = arbiter.step(state, tick)
+        samples.append(time.perf_counter() - t0)
+    return samples
 
 
 def _batched_samples(

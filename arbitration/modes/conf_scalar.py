@@ -2,7 +2,8 @@
 for every dimension, the scalar baseline scaled by a function of the robot's confidence.
 
     f(c)   = clip((c - threshold) / (1 - threshold), 0, 1)
-    alpha  = cap * f(c_joint) * (1 - erf(scale * |p_goal - p_cur|_1 / max(|p_goal - p_start|_1, floor)))
+    alpha  = cap * f(c_joint) * (1 - erf(scale * |p_goal - p_cur|_1 / max(|p_goal - p_start|_1,
+                                                                          floor)))
 
 with c_joint in [0, 1] the robot's confidence in its whole goal at once (`Quantities.
 confidence_joint`: `belief.GoalBelief.confidence`, the probability that the true goal is

@@ -51,7 +51,9 @@ class DSCParams:
 
 @functools.lru_cache(maxsize=64)
 def _caps(params: DSCParams, dims: int) -> Array:
-    return ds.caps(ds.DSParams(params.cap_translation, params.cap_rotation, params.cap_fingers), dims)
+    return ds.caps(
+        ds.DSParams(params.cap_translation, params.cap_rotation, params.cap_fingers), dims
+    )
 
 
 def alpha(params: DSCParams, q: Quantities, rows: Rows, state: ds.Windows) -> ds.Windows:
