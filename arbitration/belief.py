@@ -181,6 +181,9 @@ class GoalBelief:
         rows = batch[0] if len(batch) == 2 else 1
         goals = self.goals if len(batch) == 2 else _with_rows(self.goals)
         sigma = np.broadcast_to(sigma, (rows, K, D))
+        scale = self.params.scale(self.goals.n_fingers)
+        scale.flags.writeable = False
+        object.__setattr__(self, "_scale", scale)
         object.__setattr__(self, "_prior", prior)
         object.__setattr__(self, "_goals", goals)  # batch (rows, K)
         object.__setattr__(self, "_sigma2_over_s2_sum", ((sigma / self.scale) ** 2).sum(-1))
@@ -196,8 +199,9 @@ class GoalBelief:
 
     @property
     def scale(self) -> Array:
-        """(6 + F,) the tolerance s_i of every dimension."""
-        return self.params.scale(self.goals.n_fingers)
+        """(6 + F,) the tolerance s_i of every dimension (read-only)."""
+        scale: Array = self.__dict__["_scale"]
+        return scale
 
     @property
     def agreement(self) -> Array:
