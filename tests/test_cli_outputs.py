@@ -4,19 +4,25 @@ output folder behind (issue 34, "Crashes and surprises"; `app/outpaths.py`).
 Before: an unwritable `--history` ended the loop mid-trial with a traceback (the file is
 first written at the first finished segment); an unwritable `--rerun` file or `track --out`
 was a traceback and exit code 1; a `tune` or `replay` that failed left its new `--out`
-folder behind, empty.
+folder behind, empty; a `--record-lerobot` run killed in its first episode left a folder
+that looked empty (a hidden folder of sessions) and that the next run refused as "not empty".
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import shutil
+import subprocess
+import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from dsteleop.app.cli.main import COMMANDS, main
+from dsteleop.app.lerobot import SESSIONS
 from dsteleop.app.outpaths import (
     OutputPath,
     check_output_dir,
@@ -28,6 +34,7 @@ from dsteleop.errors import InputError
 
 REPO = Path(__file__).resolve().parents[1]
 SESSION = REPO / "recordings" / "demo-S-spoon"
+CLI = [sys.executable, "-m", "dsteleop.app.cli.main"]
 
 
 @pytest.fixture
@@ -182,3 +189,45 @@ def test_created_dir_removes_only_the_empty_folders_it_made(tmp_path: Path) -> N
     with created_dir(tmp_path / "kept") as out:
         pass
     assert out.is_dir()
+
+
+def _lines(path: Path) -> list[str]:
+    return path.read_text(encoding="utf-8").splitlines() if path.is_file() else []
+
+
+def test_a_live_dataset_killed_in_its_first_episode_says_what_is_left_and_what_to_do(
+    tmp_path: Path,
+) -> None:
+    ds = tmp_path / "ds"
+    run = [*CLI, "run", "--source", "demo", "--record-lerobot", str(ds)]
+    proc = subprocess.Popen([*run, "--realtime"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    ticks: list[Path] = []
+    try:
+        deadline = time.monotonic() + 120.0
+        while time.monotonic() < deadline and proc.poll() is None:
+            ticks = list((ds / SESSIONS).glob("*/ticks.jsonl"))
+            if ticks and len(_lines(ticks[0])) >= 15:  # half a second into its first trial
+                break
+            time.sleep(0.05)
+    finally:
+        proc.kill()  # SIGKILL: no cleanup at all, as a crash or a power cut
+        proc.communicate(timeout=30)
+    assert ticks and not (ds / "meta").exists(), "the run ended before it was killed"
+    recorded = _lines(ticks[0])
+    # The next run into the same folder: one line saying what is there and what to do.
+    r = subprocess.run(run, capture_output=True, text=True, timeout=300, check=False)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    line = r.stderr.strip()
+    assert "\n" not in line and f"only {SESSIONS}/" in line and "1 session(s)" in line, line
+    assert "ended before its first episode was written" in line and "move" in line, line
+    assert _lines(ticks[0]) == recorded  # the killed run's ticks are untouched
+    # Doing what it says (its session moved elsewhere) makes the folder reusable.
+    kept = tmp_path / "kept"
+    shutil.move(ds / SESSIONS, kept)
+    r = subprocess.run(run, capture_output=True, text=True, timeout=300, check=False)
+    assert r.returncode == 0, r.stderr
+    assert (ds / "meta" / "info.json").is_file()
+    assert _lines(kept / ticks[0].parent.name / "ticks.jsonl") == recorded
+    # A folder that holds a dataset is named as one.
+    r = subprocess.run(run, capture_output=True, text=True, timeout=300, check=False)
+    assert r.returncode == 2 and "holds a dataset already" in r.stderr, r.stderr

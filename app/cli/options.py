@@ -261,8 +261,8 @@ def add_loop_options(
         type=float,
         default=None,
         metavar="S",
-        help="reset the task S seconds after each outcome, for the next trial "
-        "(0: never; default 4 for serve, 0 for run, which stops at the outcome)",
+        help="serve: reset the task S seconds after each outcome, for the next trial "
+        "(0: never; default 4); run stops at its first outcome and refuses it",
     )
     parser.add_argument(
         "--history",
