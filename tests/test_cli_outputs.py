@@ -231,3 +231,15 @@ def test_a_live_dataset_killed_in_its_first_episode_says_what_is_left_and_what_t
     # A folder that holds a dataset is named as one.
     r = subprocess.run(run, capture_output=True, text=True, timeout=300, check=False)
     assert r.returncode == 2 and "holds a dataset already" in r.stderr, r.stderr
+
+
+def test_a_history_that_stops_being_writable_mid_run_is_one_error_not_a_traceback(
+    locked: Path,
+) -> None:
+    """Checked at start-up, the file can still become unwritable later (a full disk): the
+    save at a finished segment is then one `InputError` naming `--history`."""
+    from dsteleop.app.session.writer import HistoryFile
+    from dsteleop.arbitration.history import OperatorHistory
+
+    with pytest.raises(InputError, match=r"--history .*: cannot write the operator history"):
+        HistoryFile(locked / "history.json").save(OperatorHistory())
