@@ -2,8 +2,8 @@
 
 The groups are modules of app/bench/ (`GROUPS`); `--only` takes a comma-separated list of
 them and may be given more than once (the groups run once each, in the order named); logs
-go to stderr. `machine` in the output
-names the CPU model, the core count and the load average the figures were measured under.
+go to stderr. `machine` in the output names the CPU model, the core count and the load
+average the figures were measured under.
 """
 
 from __future__ import annotations
