@@ -391,6 +391,7 @@ class Viewer:
         names = mode_names()
         mode = gui.add_dropdown("Mode", names, initial_value=names[0])
         self._mode: Any = mode
+        self._mode_followed = names[0]  # the loop's mode the dropdown last followed
 
         @mode.on_update
         def _(event: Any) -> None:
@@ -617,9 +618,19 @@ class Viewer:
             if self._plot is not None and now - self._t_plot >= 1.0 / self.config.plot_hz:
                 self._t_plot = now
                 self._plot.data = self._history.data()
-            if snap.mode.value in mode_names() and self._mode.value != snap.mode.value:
-                self._mode.value = snap.mode.value  # follow the loop (posted by no one)
+            self._follow_mode(snap.mode.value)
         self.stats.panel_updates += 1
+
+    def _follow_mode(self, mode: str) -> None:
+        """The dropdown follows the loop's changes of mode (posted by no one). Only changes:
+        a mode a person just chose differs from the loop's until the loop takes it, and
+        setting the dropdown back meanwhile would make the person's own callback (which
+        reads the dropdown's value in viser's thread pool) post the old mode instead."""
+        if mode == self._mode_followed or mode not in mode_names():
+            return
+        self._mode_followed = mode
+        if self._mode.value != mode:
+            self._mode.value = mode
 
     def _update_camera(self, snap: TickRecord) -> None:
         seq = None if snap.hand is None else snap.hand.seq
