@@ -391,7 +391,9 @@ def _moving(page: Page, seconds: float = 1.0) -> bool:
 
 def _halted(page: Page, what: str) -> None:
     """The page says stopped and the commanded speed is 0, then (after 1 s for the arm to
-    settle) the palm it shows stays where it is for 2 s (to the 0.1 mm it is shown with)."""
+    settle) the palm it shows stays within 0.5 mm of where it is for 2 s (the demo's hand
+    moves it by ~0.1 m/s: 200 mm in that time; the palm is shown to 0.1 mm, and the held arm
+    settles by a few tenths of a millimetre)."""
     _wait(
         lambda: _status(page)["stopped"] == "1" and float(_status(page)["cmdMps"]) == 0.0,
         15.0,
@@ -408,7 +410,7 @@ def _halted(page: Page, what: str) -> None:
         page.wait_for_timeout(500)
         st = _status(page)
         assert st["stopped"] == "1" and float(st["cmdMps"]) == 0.0, st
-        assert _palm(page) == palm, (what, palm, st)
+        assert np.abs(np.subtract(_palm(page), palm)).max() < 5e-4, (what, palm, st)
     assert int(st["tick"]) > ticks + 30  # the loop ticks on: the stop is the halt, latched
 
 
