@@ -183,6 +183,9 @@ def run(args: argparse.Namespace) -> int:
         "recording": recordings[-1] if recordings else None,
         "recordings": recordings,
         "timing": loop.timing_summary(),
+        # The page's Stop presses (each latched until Resume), and whether it ended stopped.
+        "operator_stops": loop.stops,
+        "ended_stopped": loop.stopped,
     }
     if built.rerun is not None:
         summary["rerun"] = built.rerun.summary()
