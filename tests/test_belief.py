@@ -333,7 +333,9 @@ def test_the_belief_drives_dsc_end_to_end() -> None:
 def test_the_confidence_modes_reach_every_consumer(name: str) -> None:
     mode = Mode.parse(name)
     assert mode in list(Mode) and name in mode_names()  # the registry, the viewer's dropdown
-    assert mode in all_modes() and mode in SimConfig().modes  # the study's default modes
+    # The study runs it when asked, not by default: its worlds tell the robot its goal.
+    assert mode.spec.reads_confidence and mode not in all_modes()
+    assert mode not in SimConfig().modes
     space = default_space(name)
     assert any(s.startswith(f"{name}.") for s in space)
     assert {d.name for d in parse_space([], name)} >= {s.split("=")[0] for s in space}

@@ -97,8 +97,12 @@ OPEN_LOOP: tuple[str, ...] = ("side", "aligned", "deviate")
 
 
 def all_modes() -> tuple[Mode, ...]:
-    """Every registered mode (`arbitration.modes`), S and DS first: the study's default."""
-    return (Mode.S, Mode.DS, *(m for m in registered() if m not in (Mode.S, Mode.DS)))
+    """Every registered mode (`arbitration.modes`) but those that read the robot's confidence
+    in its goal (`ModeSpec.reads_confidence`: the study tells the robot its goal, so they
+    would repeat the modes they temper; `--modes` runs them), S and DS first: the study's
+    default."""
+    rest = (m for m in registered() if m not in (Mode.S, Mode.DS) and not m.spec.reads_confidence)
+    return (Mode.S, Mode.DS, *rest)
 
 
 def __getattr__(name: str) -> Any:

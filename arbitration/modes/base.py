@@ -21,6 +21,9 @@ mode's alpha rule on that mode's rows, then eq (1)-(2) for every row. A mode is 
     shorthands    names that set several of its parameters at once (`DS.cap` sets DS's three
                   caps); written configurations hold only the parameters themselves, and a
                   parameter given by its own name wins over a shorthand that sets it
+    reads_confidence  whether its rule reads the robot's confidence in its goal (False unless
+                  it says otherwise): the study's default modes leave such a mode out, since
+                  its worlds tell the robot its goal (confidence 1)
 """
 
 from __future__ import annotations
@@ -98,6 +101,10 @@ class ModeSpec:
         reads_allocation: its rule reads P_human, P_robot, psi_human, psi_robot or B of
             `Quantities` (False: only the actions, alpha and eq (3)'s distances).
         shorthands: (shorthand, the parameters it sets) pairs.
+        reads_confidence: its rule reads the robot's confidence in its goal (`Quantities.
+            confidence`); the study's worlds tell the robot its goal (confidence 1, where such
+            a mode is the one it tempers, exactly), so the study runs it only when asked
+            (`--modes`), not by default.
     """
 
     name: str
@@ -108,6 +115,7 @@ class ModeSpec:
     space: tuple[str, ...] = ()
     initial_state: Callable[[ArbitrationConfig, int, int], Any] | None = None
     reads_allocation: bool = True
+    reads_confidence: bool = False
     shorthands: tuple[tuple[str, tuple[str, ...]], ...] = ()
 
 

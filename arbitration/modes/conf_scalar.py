@@ -84,4 +84,5 @@ SPEC = ModeSpec(
     params=ConfScalarParams,
     space=(f"{NAME}.cap=0.05:1", f"{NAME}.scale=log:0.2:5", f"{NAME}.threshold=0:0.9"),
     reads_allocation=False,
+    reads_confidence=True,
 )

@@ -82,4 +82,5 @@ SPEC = ModeSpec(
     ),
     initial_state=ds.initial_state,
     shorthands=(("cap", ("cap_translation", "cap_rotation", "cap_fingers")),),
+    reads_confidence=True,
 )
