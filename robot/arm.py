@@ -9,7 +9,10 @@ One control tick (`Robot.set_target` then `Robot.step`, `control_dt_s`: 1/30 s b
                           squares, joint limits, null-space pull to the rest posture,
                           warm-started from the last solution)  ->  position motors
                           finger joints: q = q_closed + g * (q_open - q_closed), per finger
-                          (each joint's open and closed position from the description)
+                          (each joint's open and closed position from the description),
+                          within the joint's URDF limits; each URDF `<mimic>` joint of a
+                          finger joint (PyBullet ignores the tag): q = m q_master + o,
+                          within its own limits
     step():               `substeps` physics steps of control_dt_s / substeps, then contacts
     state():              palm pose by forward kinematics of the simulated joints
 
@@ -332,14 +335,39 @@ class Robot:
         self._finger_slices = [
             np.flatnonzero(self._joint_finger == k) for k in range(len(desc.fingers))
         ]
+        # Mimic joints (`description.MimicJoint`): driven at m q_master + o from their master
+        # finger joint's command, within their own limits; their links take its group.
+        finger_at = {j.name: k for k, j in enumerate(fjoints)}
+        mimics = desc.mimic_joints
+        self._mimic_idx = [loaded.joints[m.name].index for m in mimics]
+        self._mimic_master = np.array([finger_at[m.master] for m in mimics], dtype=np.intp)
+        self._mimic_m = np.array([m.multiplier for m in mimics], dtype=np.float64)
+        self._mimic_o = np.array([m.offset for m in mimics], dtype=np.float64)
+        self._mimic_lo = np.array([-np.inf if m.lower is None else m.lower for m in mimics])
+        self._mimic_hi = np.array([np.inf if m.upper is None else m.upper for m in mimics])
+        limits = {n: (lo, hi) for n, lo, hi in desc.finger_limits}
+        self._finger_lo = np.array([limits.get(j.name, (-np.inf, np.inf))[0] for j in fjoints])
+        self._finger_hi = np.array([limits.get(j.name, (np.inf, np.inf))[1] for j in fjoints])
         #: contact group of each finger link (by link name), and the fingers of each group
-        self.link_group: dict[str, str] = {
-            self._link_names[loaded.joints[j.name].index]: j.group for j in fjoints
-        }
+        link_finger: dict[str, tuple[str, str]] = {}  # link -> (group, finger)
+        for k, j in enumerate(fjoints):
+            f = desc.fingers[int(self._joint_finger[k])].name
+            link_finger[self._link_names[loaded.joints[j.name].index]] = (j.group, f)
+        for m, k in zip(mimics, self._mimic_master, strict=True):
+            f = desc.fingers[int(self._joint_finger[k])].name
+            link_finger[self._link_names[loaded.joints[m.name].index]] = (fjoints[k].group, f)
+        for link, group in desc.link_groups:  # a pad's own group; its finger: up the tree
+            li, owner = loaded.links[link], ""
+            while li >= 0 and not owner:
+                owner = link_finger.get(self._link_names[li], ("", ""))[1]
+                li = int(pb.getJointInfo(loaded.body, li, physicsClientId=client)[16])
+            link_finger[link] = (group, owner)
+        self.link_group: dict[str, str] = {ln: g for ln, (g, _) in link_finger.items()}
         self._group_fingers: dict[str, set[str]] = {}
-        for f in desc.fingers:
-            for j in f.joints:
-                self._group_fingers.setdefault(j.group, set()).add(f.name)
+        for g, f in link_finger.values():
+            self._group_fingers.setdefault(g, set())
+            if f:
+                self._group_fingers[g].add(f)
         movable = sorted(loaded.joints.values(), key=lambda j: j.index)
         self._chain = chain
         self._q_rest = np.array(desc.rest_posture_rad)
@@ -351,6 +379,8 @@ class Robot:
         self._arm_gains = [desc.arm_position_gain] * len(self._arm)
         self._finger_gains = [config.finger_position_gain] * len(self._finger_idx)
         self._finger_forces = [f.force for f in desc.fingers for _ in f.joints]
+        self._mimic_forces = [self._finger_forces[int(k)] for k in self._mimic_master]
+        self._mimic_gains = [config.finger_position_gain] * len(self._mimic_idx)
         self._all_idx = [j.index for j in movable]
         self._q_open = np.array([j.open for j in fjoints])
         self._q_closed = np.array([j.closed for j in fjoints])
@@ -389,7 +419,8 @@ class Robot:
                 jointDamping=0.0 if info.name in desc.arm_joints else 0.01,
                 physicsClientId=client,
             )
-        for li in self._finger_idx:  # a joint's index is its child link's
+        pads = sorted({loaded.links[ln] for ln in self.link_group})
+        for li in pads:  # every finger link: the finger joints', the mimics', link_groups'
             pb.changeDynamics(
                 self._body,
                 li,
@@ -445,6 +476,9 @@ class Robot:
         q_f = self._finger_q(g)
         for k, idx in enumerate(self._finger_idx):
             pb.resetJointState(self._body, idx, float(q_f[k]), physicsClientId=self._c)
+        for k, idx in enumerate(self._mimic_idx):
+            q_m = float(self._mimic_q(q_f)[k])
+            pb.resetJointState(self._body, idx, q_m, physicsClientId=self._c)
         self._t_s = 0.0
         self._state_cache = None
         self.release()
@@ -493,6 +527,12 @@ class Robot:
         # driving its pad into it; NaN entries (free fingers) leave the command as it is.
         limit = self._stall_q + self._sense * self._squeeze
         q_f = np.where(self._sense * (q_f - limit) > 0.0, limit, q_f)
+        self._command_fingers(q_f)
+
+    def _command_fingers(self, q_f: Array) -> None:
+        """Position targets for the finger joints (within their URDF limits) and, from
+        them, for their mimic joints."""
+        q_f = np.clip(q_f, self._finger_lo, self._finger_hi)
         pb.setJointMotorControlArray(
             self._body,
             self._finger_idx,
@@ -502,6 +542,22 @@ class Robot:
             positionGains=self._finger_gains,
             physicsClientId=self._c,
         )
+        if self._mimic_idx:
+            pb.setJointMotorControlArray(
+                self._body,
+                self._mimic_idx,
+                pb.POSITION_CONTROL,
+                targetPositions=self._mimic_q(q_f).tolist(),
+                forces=self._mimic_forces,
+                positionGains=self._mimic_gains,
+                physicsClientId=self._c,
+            )
+
+    def _mimic_q(self, q_f: Array) -> Array:
+        """Each mimic joint's position for finger joint positions q_f: m q_master + o,
+        within its limits."""
+        q = self._mimic_m * q_f[self._mimic_master] + self._mimic_o
+        return np.asarray(np.clip(q, self._mimic_lo, self._mimic_hi))
 
     def _finger_q(self, g: Array) -> Array:
         per_joint = g[self._joint_finger]
@@ -544,11 +600,7 @@ class Robot:
             targetPositions=self._q_arm_cmd.tolist(), forces=self._arm_forces,
             positionGains=self._arm_gains, physicsClientId=self._c,
         )  # fmt: skip
-        pb.setJointMotorControlArray(
-            self._body, self._finger_idx, pb.POSITION_CONTROL,
-            targetPositions=q_f.tolist(), forces=self._finger_forces,
-            positionGains=self._finger_gains, physicsClientId=self._c,
-        )  # fmt: skip
+        self._command_fingers(q_f)
 
     def step(self) -> None:
         """Advance the physics by one control tick (`control_dt_s`) under the current targets."""

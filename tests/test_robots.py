@@ -91,8 +91,8 @@ WORDS = {
     "not revolute": "not revolute",
     "urdf": "arm.urdf",
     "grasp frame": "grip.tcp_xyz_m must be 3 finite numbers",
-    "friction": "grip.spinning_friction must be >= 0",
-    "squeeze": "fingers[0].squeeze_share must be at most 1",
+    "friction": "grip.spinning_friction must be in [0, 1], got -0.1",
+    "squeeze": "fingers[0].squeeze_share must be in (0, 1], got 2.0",
 }
 
 
