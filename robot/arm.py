@@ -58,6 +58,14 @@ removed as soon as the thumb or all the other fingers are commanded open; its st
 `helper_max_force_n`. With the defaults the scripted run holds every utensil by friction
 alone.
 
+Steady state: before each physics step every robot link is held up by its own weight
+(`RobotConfig.gravity_compensation`: m g upwards at its centre of mass), as a real arm's
+controller feeds its gravity torques forward. Without it the position motors (10 solver
+iterations) leave the arm 0.1-1.3 mrad short of its target under gravity, and a goal-seeking
+policy that steps from the achieved palm (X_next = X + K_r e dt) stops where its step equals
+that sag: 3-8 mm short at K_r = 2 /s (docs/robot.md, `scripts/steady_state.py`); with it,
+0.3 mm. An integral term would also remove the offset, but winds up against contact.
+
 Quaternions cross this boundary as rotation matrices; PyBullet's xyzw stays inside.
 """
 
@@ -156,6 +164,9 @@ class RobotConfig:
         pad_damping_n_s_per_m: ... and their contact damping [N s/m] (about critical for a
             20-30 g phalanx on that spring: 2 sqrt(k m) = 28-35 N s/m).
         control_dt_s: simulated time of one control tick [s] (the loop's period).
+        gravity_compensation: hold every robot link up against gravity (its weight at its
+            centre of mass, each physics step), as a real arm's controller compensates its
+            own weight (module docstring: steady state).
     """
 
     substeps: int = 3
@@ -176,6 +187,7 @@ class RobotConfig:
     pad_stiffness_n_per_m: float = 1.0e4
     pad_damping_n_s_per_m: float = 30.0
     control_dt_s: float = CONTROL_DT_S
+    gravity_compensation: bool = True
 
     @classmethod
     def for_period(cls, control_dt_s: float, **kw: Any) -> RobotConfig:
@@ -402,6 +414,17 @@ class Robot:
         self._unreachable = False
         self._ik_err_m = 0.0
         self._ik_err_rad = 0.0
+        #: gravity compensation: each moving link and the force that holds it up [N]
+        self._gc_links: list[int] = []
+        self._gc_forces: list[tuple[float, float, float]] = []
+        if config.gravity_compensation:
+            params = pb.getPhysicsEngineParameters(physicsClientId=client)
+            gx, gy, gz = (float(params[f"gravityAcceleration{a}"]) for a in "XYZ")
+            for li in sorted(set(loaded.links.values()) - {-1}):
+                mass = float(pb.getDynamicsInfo(loaded.body, li, physicsClientId=client)[0])
+                if mass > 0.0:
+                    self._gc_links.append(li)
+                    self._gc_forces.append((-mass * gx, -mass * gy, -mass * gz))
         pb.setPhysicsEngineParameter(
             fixedTimeStep=config.physics_dt_s,
             numSubSteps=0,
@@ -606,12 +629,25 @@ class Robot:
         """Advance the physics by one control tick (`control_dt_s`) under the current targets."""
         self._state_cache = None
         for _ in range(self.config.substeps):
+            self._compensate_gravity()
             pb.stepSimulation(physicsClientId=self._c)
         self._t_s += self.config.control_dt_s
         self._contacts = self._read_contacts()
         self._update_stall()
         if self.config.grasp_helper:
             self._update_helper()
+
+    def _compensate_gravity(self) -> None:
+        """Hold each of the robot's links up against gravity for the next physics step (its
+        weight, upwards, at its centre of mass; PyBullet clears external forces after each
+        step): module docstring, steady state. A held body's weight is not compensated."""
+        if not self._gc_links:
+            return
+        states = pb.getLinkStates(
+            self._body, self._gc_links, computeForwardKinematics=True, physicsClientId=self._c
+        )
+        for li, f, st in zip(self._gc_links, self._gc_forces, states, strict=True):
+            pb.applyExternalForce(self._body, li, f, st[0], pb.WORLD_FRAME, physicsClientId=self._c)
 
     def touching_groups(self, body: int, others: str | None = None) -> set[str]:
         """The finger contact groups whose links touch `body` (as of the last step); with
