@@ -318,8 +318,9 @@ def shipped_robots() -> tuple[str, ...]:
     return tuple(sorted(p.stem for p in ROBOTS_DIR.glob("*.toml")))
 
 
-def description_path(name_or_file: str) -> Path:
-    """The file `--robot NAME|FILE` names.
+def description_path(name_or_file: str, given_by: str = "--robot") -> Path:
+    """The file `--robot NAME|FILE` names (`given_by`: where the name came from, for the
+    one-line errors, e.g. a link configuration file's `robot` field).
 
     Raises:
         InputError: no shipped robot of that name and no such file.
@@ -327,13 +328,13 @@ def description_path(name_or_file: str) -> Path:
     p = Path(name_or_file)
     if p.suffix == ".toml" or p.is_file():
         if not p.is_file():
-            raise InputError(f"--robot: no such robot description file: {name_or_file}")
+            raise InputError(f"{given_by}: no such robot description file: {name_or_file}")
         return p.resolve()
     shipped = ROBOTS_DIR / f"{name_or_file}.toml"
     if shipped.is_file():
         return shipped
     raise InputError(
-        f"--robot: unknown robot {name_or_file!r} (shipped: {', '.join(shipped_robots())}; "
+        f"{given_by}: unknown robot {name_or_file!r} (shipped: {', '.join(shipped_robots())}; "
         "or a .toml file)"
     )
 

@@ -123,11 +123,13 @@ def readme(commands: list[str], args: argparse.Namespace, n_cells: int, seconds:
         f"Made by `scripts/tune_sweep.py --design {args.design} --modes {args.modes} "
         f"{_budget(args)} --trajectories {args.trajectories} --workers {args.workers} "
         + "".join(f"--reuse {r} " for r in args.reuse)
-        + f"--out {args.out}` ({time.strftime('%Y-%m-%d', time.gmtime())}, {seconds:.0f} s): "
-        f"{n_cells} cells, each mode tuned with the same budget on tuning trajectories of "
-        "seed 0 in the cell's world; `<cell>.json` merges the modes' best parameters (each "
-        "mode's own tuned fields over their shared defaults), `runs/<cell>/<mode>/` holds "
-        "each tuning study.",
+        + f"--out {args.out}` ({time.strftime('%Y-%m-%d', time.gmtime())}, {seconds:.0f} s "
+        "for the runs this invocation made; a kept run's own time is in its summary.json): "
+        f"{n_cells} cells, each mode of --modes tuned with the same budget on tuning "
+        "trajectories of seed 0 in the cell's world"
+        + "".join(f"; {r.split('=', 1)[0]} as tuned in {r.split('=', 1)[1]}" for r in args.reuse)
+        + "; `<cell>.json` merges the modes' best parameters (each mode's own tuned fields over "
+        "their shared defaults), `runs/<cell>/<mode>/` holds each tuning study made here.",
         "",
         "Held-out judgement (other people, seed 1):",
         "",

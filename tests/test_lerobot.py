@@ -12,7 +12,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import pyarrow as pa  # type: ignore[import-untyped]
@@ -25,6 +25,7 @@ from dsteleop.app.lerobot.reader import read_dataset
 from dsteleop.app.replay.core import replay_session
 from dsteleop.app.session.reader import Session, read_session
 from dsteleop.arbitration import Mode
+from dsteleop.errors import InputError
 
 CLI = [sys.executable, "-m", "dsteleop.app.cli.main"]
 ROOT = Path(__file__).resolve().parents[1]
@@ -78,7 +79,7 @@ def test_the_sample_sessions_export_to_the_v3_layout(samples_dataset: Path) -> N
         "chunks_size", "data_files_size_in_mb", "video_files_size_in_mb", "data_path",
         "video_path", "robot_type", "splits",
     }  # fmt: skip
-    assert json.loads((samples_dataset / layout.MARK).read_text())["layout"] == 1
+    assert json.loads((samples_dataset / layout.MARK).read_text())["layout"] == 2
     feats = info["features"]
     dims = ["x", "y", "z", "roll", "pitch", "yaw", "thumb", "index", "middle", "ring"]
     assert feats["observation.state"]["names"] == [
@@ -321,7 +322,12 @@ def test_a_real_video_session_exports_with_its_camera(
     # The video holds the session's frames: frame k of the dataset is the session's frame
     # that its tick showed (pixels alike after two lossy encodings).
     data = pq.read_table(video_dataset / "data/chunk-000/file-000.parquet")
-    cam_t = data.column("dsteleop.camera_t_s").to_numpy()
+    # The capture times since each episode's start, back on the loop's clock.
+    eps = pq.read_table(video_dataset / "meta/episodes/chunk-000/file-000.parquet").to_pylist()
+    starts = {int(r["episode_index"]): float(r[layout.T_START]) for r in eps}
+    cam_t = data.column("dsteleop.camera_t_s").to_numpy() + np.array(
+        [starts[int(e)] for e in data.column("episode_index").to_numpy()]
+    )
     times = [json.loads(x)["t_capture"] for x in (video_session / "frames.jsonl").open()]
     with av.open(str(video_session / "video.mp4")) as c:
         original = [f.to_ndarray(format="gray") for f in c.decode(c.streams.video[0])]
@@ -329,7 +335,8 @@ def test_a_real_video_session_exports_with_its_camera(
         exported = [f.to_ndarray(format="gray") for f in c.decode(c.streams.video[0])]
     assert len(exported) == info["total_frames"]
     for k in range(0, len(exported), 17):
-        i = times.index(cam_t[k])
+        i = int(np.argmin(np.abs(np.asarray(times) - cam_t[k])))
+        assert abs(times[i] - cam_t[k]) < 1e-6, (k, times[i], cam_t[k])
         diff = np.abs(exported[k].astype(float) - original[i].astype(float)).mean()
         other = np.abs(exported[k].astype(float) - original[(i + 40) % len(original)]).mean()
         assert diff < 6.0 and diff < other, (k, diff, other)
@@ -493,3 +500,177 @@ def test_a_session_of_the_first_schema_exports_and_round_trips(tmp_path: Path) -
     for name in ("alpha", "B", "U_out"):
         np.testing.assert_allclose(getattr(a.step, name), getattr(b.step, name), rtol=0, atol=1e-9)
     assert a.outcome == b.outcome
+
+
+# --- time columns that survive float32 (issue 33, item 10) -------------------------------
+
+#: A loop clock after days of uptime (a monotonic clock counts from boot) [s]: float32 steps
+#: by 0.0625 s there.
+UPTIME_T0_S = 1_000_003.123456789
+CAMERA_LEAD_S = 0.012  # each frame is captured this long before its tick
+
+
+def _uptime_session(folder: Path, seconds: tuple[float, ...] = (3.0, 100.0)) -> list[float]:
+    """A session of the loop (its own logic, fakes of the robot and task: no PyBullet) on a
+    clock starting at `UPTIME_T0_S`, one episode per entry of `seconds` (the task reset in
+    between), with a camera video beside it (`--record-video`'s files: a small synthetic
+    H.264 and frames.jsonl, each frame captured `CAMERA_LEAD_S` before a tick). Returns the
+    frames' capture times."""
+    from dsteleop.app.loop import LoopConfig, TeleopLoop
+    from dsteleop.app.loop.timing import ManualClock
+    from dsteleop.app.session.video import FRAMES, VIDEO, Mp4Writer
+
+    from .fakes import DT, ScriptedHand, fake_world, state
+
+    start = state((0.5, 0.3, 0.4))
+    loop = TeleopLoop(
+        LoopConfig(mode=Mode.MANUAL),
+        ScriptedHand(lambda t: start),
+        *fake_world(start=start),
+        clock=ManualClock(UPTIME_T0_S),
+    )
+    loop.start_recording(folder)
+    k = 0
+    for n, duration in enumerate(seconds):
+        if n:
+            loop.controls.reset()
+        for _ in range(round(duration / DT)):
+            t = UPTIME_T0_S + k * DT
+            loop.clock.sleep_until(t)
+            loop.tick(t)
+            k += 1
+    loop.close()
+    times = [UPTIME_T0_S + i * DT - CAMERA_LEAD_S for i in range(k)]
+    writer = Mp4Writer(folder / VIDEO, 30.0, 64, 48)
+    try:
+        with open(folder / FRAMES, "w", encoding="utf-8") as index:
+            for i, t in enumerate(times):
+                img = np.full((48, 64, 3), (7 * i) % 256, dtype=np.uint8)
+                writer.write(img)
+                index.write(json.dumps({"i": i, "seq": i, "t_capture": t}) + "\n")
+    finally:
+        writer.close()
+    return times
+
+
+class Uptime(NamedTuple):
+    """`_uptime_session`'s session, its frames' capture times, and its export."""
+
+    session: Path
+    capture_t_s: list[float]
+    dataset: Path
+
+
+@pytest.fixture(scope="module")
+def uptime(tmp_path_factory: pytest.TempPathFactory) -> Uptime:
+    tmp = tmp_path_factory.mktemp("uptime")
+    capture = _uptime_session(tmp / "s")
+    r = dsteleop("export", str(tmp / "s"), "--to", "lerobot", "--out", str(tmp / "ds"))
+    assert r.returncode == 0, r.stderr
+    return Uptime(tmp / "s", capture, tmp / "ds")
+
+
+def test_time_columns_count_from_the_episode_start_and_survive_float32(uptime: Uptime) -> None:
+    """Written at a loop clock of ~1e6 s, the frame table's times read back within 1e-5 s of
+    the true time since the episode's start through float32 (LeRobot's reader gives every
+    float column to PyTorch as float32: the arrow cast below is the same rounding), and
+    exactly through the project's reader, which adds each episode's start back."""
+    from dsteleop.app.lerobot.reader import frame_times
+
+    session, capture, out = read_session(uptime.session), uptime.capture_t_s, uptime.dataset
+    assert problems(out) == []
+    assert json.loads((out / layout.MARK).read_text())["layout"] == 2
+    data = pq.read_table(out / "data/chunk-000/file-000.parquet")
+    eps = pq.read_table(out / "meta/episodes/chunk-000/file-000.parquet").to_pylist()
+    assert [int(e["length"]) for e in eps] == [90, 3000]
+    ep_col = data.column("episode_index").to_numpy()
+    as_f32 = {
+        k: data.column(k).cast(pa.float32()).to_numpy()
+        for k in ("dsteleop.t_s", "dsteleop.camera_t_s")
+    }
+    dataset = read_dataset(out)
+    assert dataset.layout == 2
+    for e, (row, view) in enumerate(zip(eps, dataset.sessions, strict=True)):
+        t_start = float(row[layout.T_START])
+        records = session.of_episode(session.episodes[e]).records
+        t_true = np.array([rec.t_s for rec in records])
+        assert t_start == t_true[0] and t_start > UPTIME_T0_S - 1.0
+        i0 = round((t_true[0] - UPTIME_T0_S) * 30)
+        cam_true = np.array(capture[i0 : i0 + len(t_true)])
+        m = ep_col == e
+        # float64 in the file: the times since the start, to the last bits
+        rel = data.column("dsteleop.t_s").to_numpy()[m]
+        assert rel[0] == 0.0 and np.abs(rel - (t_true - t_start)).max() < 1e-9
+        # float32, as LeRobot reads them: within 1e-5 s over a 100 s episode
+        assert np.abs(as_f32["dsteleop.t_s"][m] - (t_true - t_start)).max() < 1e-5
+        cam_err = np.abs(as_f32["dsteleop.camera_t_s"][m] - (cam_true - t_start)).max()
+        assert cam_err < 1e-5, cam_err
+        # ... where the loop's clock itself would have been off by up to 31 ms
+        assert np.abs(t_true.astype(np.float32) - t_true).max() > 1e-2
+        # the project's reader: the loop's times back (the start plus the columns), and the
+        # tick records of a replay exactly as recorded
+        times = frame_times(dataset, e)
+        assert times.camera_t_s is not None
+        assert np.abs(times.t_s - t_true).max() < 1e-6
+        assert np.abs(times.camera_t_s - cam_true).max() < 1e-6
+        assert [rec.t_s for rec in view.records] == list(t_true)
+
+
+def test_the_layout_check_wants_the_time_columns_from_the_episode_start(
+    uptime: Uptime, tmp_path: Path
+) -> None:
+    """The loop's clock itself in `dsteleop.t_s` (layout 1), or an episode table without the
+    start, is found by our check."""
+    bad = tmp_path / "bad"
+    shutil.copytree(uptime.dataset, bad)
+    path = bad / "data/chunk-000/file-000.parquet"
+    t = pq.read_table(path)
+    starts = {
+        int(r["episode_index"]): float(r[layout.T_START])
+        for r in pq.read_table(bad / "meta/episodes/chunk-000/file-000.parquet").to_pylist()
+    }
+    loop_clock = t.column("dsteleop.t_s").to_numpy() + np.array(
+        [starts[int(e)] for e in t.column("episode_index").to_numpy()]
+    )
+    i = t.column_names.index("dsteleop.t_s")
+    pq.write_table(t.set_column(i, "dsteleop.t_s", pa.array(loop_clock)), path)
+    found = problems(bad)
+    assert any("not 0" in p for p in found) and any(layout.T_START in p for p in found), found
+    # ... which is what a dataset of layout 1 held: its reader takes the columns as they are.
+    from dsteleop.app.lerobot.reader import frame_times
+
+    mark = json.loads((bad / layout.MARK).read_text())
+    (bad / layout.MARK).write_text(json.dumps({**mark, "layout": 1}))
+    old = read_dataset(bad)
+    assert old.layout == 1 and old.t_start_s(1) == 0.0
+    m = t.column("episode_index").to_numpy() == 1
+    assert np.array_equal(frame_times(old, 1).t_s, loop_clock[m])
+    (bad / layout.MARK).write_text(json.dumps({**mark, "layout": 3}))
+    with pytest.raises(InputError, match="layout 3; this version reads layouts 1 to 2"):
+        read_dataset(bad)
+    (bad / layout.MARK).write_text(json.dumps(mark))
+    eps_path = bad / "meta/episodes/chunk-000/file-000.parquet"
+    eps = pq.read_table(eps_path)
+    pq.write_table(eps.drop_columns([layout.T_START]), eps_path)
+    assert any(f"no {layout.T_START}" in p for p in problems(bad)), problems(bad)
+
+
+def test_lerobot_itself_reads_the_times_since_the_episode_start(tmp_path: Path) -> None:
+    """With LeRobot installed (optional: it needs PyTorch), its own reader gives the times
+    within 1e-5 s of the true time since each episode's start, at a loop clock of ~1e6 s."""
+    lerobot_dataset = pytest.importorskip("lerobot.datasets.lerobot_dataset")
+
+    session_dir = tmp_path / "s"
+    _uptime_session(session_dir, (3.0, 20.0))
+    out = tmp_path / "ds"
+    r = dsteleop("export", str(session_dir), "--to", "lerobot", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    session = read_session(session_dir)
+    ds = lerobot_dataset.LeRobotDataset("dsteleop/uptime", root=str(out))
+    starts = list(ds.meta.episodes[layout.T_START])
+    t_true = [rec.t_s for ep in session.episodes for rec in session.of_episode(ep).records]
+    for k in range(0, len(ds), 37):
+        frame = ds[k]
+        e = int(frame["episode_index"])
+        got = float(frame["dsteleop.t_s"])
+        assert abs(got - (t_true[k] - starts[e])) < 1e-5, (k, got)

@@ -367,6 +367,57 @@ def test_serve_builds_the_linked_robot_with_its_twin_and_shows_it_lost(tmp_path)
             far.kill()
 
 
+def test_the_operators_stop_halts_a_linked_robot_through_the_loop(tmp_path):
+    """The page's Stop (posted to the loop's controls, as the button does) with a robot over
+    the link: the far end's measured palm (what the records carry) stands still within half a
+    second, while commands keep flowing (the loop's halt, not the far end's watchdog), and
+    moves again after Resume."""
+    from dsteleop.app.cli.compose import build
+    from dsteleop.app.cli.options import LoopOptions
+    from dsteleop.app.loop import tick as loop_tick
+
+    cfg = link_file(tmp_path, free_port(), robot="panda")
+    far = Far(cfg)
+    built = build(LoopOptions.of("demo", robot=f"zenoh:{cfg}"), realtime=True, export_scene=True)
+    loop = built.loop
+
+    def ticks(seconds: float) -> list[Any]:
+        out = []
+        t_end = loop.clock.now() + seconds
+        while (now := loop.clock.now()) < t_end:
+            out.append(loop.tick(now))
+            loop.clock.sleep_until(now + 1 / 30)
+        return out
+
+    def speeds(records: list[Any]) -> NDArray[np.float64]:
+        p = np.array([r.X_current.position for r in records])
+        t = np.array([r.t_s for r in records])
+        return np.asarray(np.linalg.norm(np.diff(p, axis=0), axis=1) / np.diff(t))
+
+    try:
+        assert isinstance(loop.robot, ZenohRobot)
+        loop.hand.start()  # as `run` does before its first tick: the demo's hand starts
+        running = ticks(1.5)  # the demo reaches for the utensil from ~0.3 s to ~2.3 s
+        assert speeds(running[-15:]).max() > 0.01  # the demo's hand moves the far arm
+        loop.controls.stop_robot()
+        stopped = ticks(2.0)
+        assert all(r.stopped and r.reason == loop_tick.STOPPED for r in stopped)
+        assert not any(r.reason == ROBOT_LOST for r in stopped)  # the link is alive
+        settled = [r for r in stopped if r.t_s > stopped[0].t_s + 0.5]
+        assert len(settled) > 30 and speeds(settled).max() < 0.005, speeds(settled).max()
+        loop.controls.resume_robot()
+        after = ticks(4.0)
+        assert not any(r.stopped for r in after) and after[0].notes == ("resume",)
+        assert speeds(after).max() > 0.01  # driven again
+        # Commands kept coming all along: the far end's watchdog never halted it.
+        assert not [ln for ln in far.lines if "halted, no command for" in ln], far.lines
+        assert far.terminate()["applied"] > 0
+    finally:
+        built.close()
+        if far.proc.poll() is None:
+            far.kill()
+
+
 def _tokens(session: Any, domain_id: int = 0) -> set[str]:
     """The keys of every liveliness token under rmw_zenoh's admin space, as a ROS 2 context
     on rmw_zenoh asks for them when it starts (`liveliness get`)."""

@@ -205,8 +205,12 @@ def test_config_defaults_file_and_errors(tmp_path):
     assert read_link_config(f) == c
     f.write_text(json.dumps(resolved.to_json()))
     assert read_link_config(f) == resolved
-    # a description file is read from the configuration's folder
+    # a description file is read from the configuration's folder; a missing one is named
+    # as the file's field (not --robot's)
     f.write_text(json.dumps({"robot": "my_arm.toml"}))
+    with pytest.raises(InputError, match=f"link config {f}: field robot: no such robot"):
+        read_link_config(f)
+    (tmp_path / "my_arm.toml").write_text("")
     assert read_link_config(f).robot == str(tmp_path / "my_arm.toml")
     d = link_config_from_json(
         {"domain_id": 5, "topics": {"command_pose": "/arm/target"}, "finger_names": ["gripper"]}

@@ -206,6 +206,92 @@ def test_a_lost_robot_halts_the_loop_as_a_lost_hand_does_and_it_resumes() -> Non
     np.testing.assert_allclose(first_back.step.U_human, 0.0, atol=1e-12)
 
 
+def _run_with_stop(
+    loop: TeleopLoop, seconds: float, stop_at: float, resume_at: float
+) -> list[TickRecord]:
+    """`run`, pressing Stop just before the tick at `stop_at` and Resume before `resume_at`
+    (as the page's buttons do: through the controls, taken at the next tick)."""
+    out = []
+    for k in range(round(seconds / DT)):
+        t = k * DT
+        if abs(t - stop_at) < DT / 2:
+            loop.controls.stop_robot()
+        if abs(t - resume_at) < DT / 2:
+            loop.controls.resume_robot()
+        loop.clock.sleep_until(t)
+        out.append(loop.tick(t))
+    return out
+
+
+def test_a_latched_stop_halts_as_a_lost_hand_does_until_resume_and_is_recorded(
+    tmp_path: Path,
+) -> None:
+    # The hand keeps moving and is tracked all along; the operator stops at 1.5 s and
+    # resumes at 2.5 s.
+    stop_at, resume_at = 1.5, 2.5
+    loop = make_loop(moving((0.0, -0.10, -0.06), T=3.0))
+    loop.start_recording(tmp_path / "s")
+    records = _run_with_stop(loop, 3.5, stop_at, resume_at)
+    loop.close()
+    t = np.array([r.t_s for r in records])
+    speed = speeds(records)
+    assert speed[(t[1:] > 1.0) & (t[1:] < stop_at)].min() > 0.01  # it was moving
+    stopped = [r for r in records if r.stopped]
+    assert stopped[0].t_s == pytest.approx(stop_at) and stopped[-1].t_s < resume_at
+    assert len(stopped) == round((resume_at - stop_at) / DT)
+    # Latched: every tick until Resume halts, though the hand is fresh all the time.
+    assert all(r.hand is not None and r.hand.X_human is not None for r in stopped)
+    assert all(r.status is Status.LOST and r.reason == loop_tick.STOPPED for r in stopped)
+    assert all(r.step is None for r in stopped)
+    # The lost hand's halt: the command ramps down from the last one, never up, and is 0
+    # once the ramp is over; the arm then stands still.
+    cmds = [float(np.linalg.norm(r.U_cmd[:3])) for r in stopped]
+    assert cmds[0] > 0.0 and all(b <= a for a, b in itertools.pairwise(cmds))
+    t_zero = stop_at + loop.config.halt_ramp_s + DT
+    assert all(float(np.abs(r.U_cmd).max()) == 0.0 for r in stopped if r.t_s >= t_zero)
+    still = speed[(t[1:] > t_zero + DT) & (t[1:] < resume_at)]
+    assert still.size > 20 and still.max() < 1e-9, still
+    # Resume: tracking again, re-anchored (the hand moved on meanwhile: no jump).
+    back = [r for r in records if r.t_s >= resume_at]
+    assert not any(r.stopped for r in back) and back[-1].status is Status.TRACKING
+    assert speed[t[1:] > resume_at].max() <= loop.config.arbitration.v_max_mps * 1.0001
+    first_back = next(r for r in back if r.step is not None)
+    assert first_back.step is not None
+    np.testing.assert_allclose(first_back.step.U_human, 0.0, atol=1e-12)
+    assert speed[t[1:] > resume_at + 0.3].max() > 0.01  # and the hand drives it again
+    # The press and the resume are events of the tick they took effect in, in the record,
+    # the loop's log and the recorded episode; the stopped flag reads back.
+    assert [(round(r.t_s, 6), r.notes) for r in records if r.notes] == [
+        (stop_at, ("stop",)),
+        (resume_at, ("resume",)),
+    ]
+    assert [e for _, e in loop.events_log] == ["stop", "resume"] and loop.stops == 1
+    session = read_session(tmp_path / "s")
+    assert [r.stopped for r in session.records] == [r.stopped for r in records]
+    (episode,) = session.episodes
+    assert [e for _, e in episode.events] == ["stop", "resume"]
+    assert [k for k, _ in episode.events] == [stopped[0].k, back[0].k]
+
+
+def test_a_stop_halts_also_under_the_assist_policy_and_wins_over_a_resume_in_its_tick() -> None:
+    loop = make_loop(lambda t: None if t > 0.5 else START, Mode.DS, LostPolicy.ASSIST)
+    run(loop, 1.0)
+    loop.controls.stop_robot()
+    loop.controls.resume_robot()  # in the same tick: the stop stays
+    loop.controls.stop_robot()  # a second press changes nothing
+    records = run(loop, 1.0, t0=1.0)
+    assert loop.stopped and loop.stops == 1
+    assert all(r.stopped and r.status is Status.LOST and r.step is None for r in records)
+    assert all(r.reason == loop_tick.STOPPED for r in records)
+    assert float(np.abs(records[-1].U_cmd).max()) == 0.0
+    assert speeds(records[5:]).max() < 1e-9  # no assist while stopped
+    loop.controls.resume_robot()
+    after = run(loop, 0.5, t0=2.0)
+    assert not any(r.stopped for r in after) and after[0].notes == ("resume",)
+    assert loop.stops == 1
+    assert all(r.status is Status.ASSIST for r in after)  # the policy again
+
+
 def test_nan_in_the_hand_data_counts_as_stale() -> None:
     def corrupt(inp: HumanInput) -> HumanInput:
         if inp.t_capture_s >= 1.0 and inp.X_human is not None:

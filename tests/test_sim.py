@@ -429,7 +429,7 @@ def test_unwritable_out_dir(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     blocker.write_text("not a directory")
     code = run_cli("--trajectories", "5", "--out", str(blocker / "sub"))
     err = capsys.readouterr().err.strip().splitlines()
-    assert code == 2 and len(err) == 1 and "cannot write to output directory" in err[0]
+    assert code == 2 and len(err) == 1 and "--out: cannot write to" in err[0]
 
 
 def test_cli_subprocess_bad_argument_no_traceback(tmp_path: Path) -> None:

@@ -97,7 +97,7 @@ def test_track_prefixed_sources(tmp_path: Path, capsys: pytest.CaptureFixture[st
         (["track", "demo", "--out", "{tmp}/o.jsonl"], "not demo"),
         (["track", "auto", "--out", "{tmp}/o.jsonl"], "not auto"),
         (["track", "nosuchkind:x", "--out", "{tmp}/o.jsonl"], "unknown source kind"),
-        (["track", "synthetic", "--out", "/no/such/dir/o.jsonl"], "folder of --out"),
+        (["track", "synthetic", "--out", "/no/such/dir/o.jsonl"], "--out: no such folder"),
         (["track", "{tmp}/empty.mp4", "--out", "{tmp}/o.jsonl"], "empty"),
         (["track", "synthetic", "--out", "{tmp}/o.jsonl", "--size", "big"], "--size"),
         (["track", "97", "--out", "{tmp}/o.jsonl"], "camera 97 does not open"),

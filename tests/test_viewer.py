@@ -618,6 +618,59 @@ def test_viewer_follows_a_live_loop_and_never_posts_on_its_own() -> None:
     assert viewer.server is None
 
 
+def test_the_page_shows_a_latched_stop_and_enables_resume_only_then() -> None:
+    """The loop's stop (what the page's Stop posts) reaches the page through the records:
+    the status says stopped, in red, with the commanded speed 0 once the halt ramp is over;
+    the banner says it, and Resume is enabled only while stopped."""
+    from dsteleop.app.loop import tick as loop_tick
+    from dsteleop.app.viewer.panel import RED, status_html, stop_html
+    from dsteleop.app.viewer.server import Viewer, ViewerConfig
+
+    built = _demo_loop()
+    loop = built.loop
+    viewer = Viewer(loop.broadcaster, loop.controls, loop.task.scene(), ViewerConfig(port=0))
+
+    def ticks(n: int) -> list[TickRecord]:
+        out = []
+        for _ in range(n):
+            out.append(loop.tick(loop.clock.now()))
+            _manual_clock(loop).advance(loop.config.dt_s)
+            time.sleep(0.005)
+        return out
+
+    def shown(stopped: bool) -> bool:
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline:
+            if viewer._resume.disabled is not stopped and (
+                f'data-stopped="{int(stopped)}"' in viewer._stop_note.content
+            ):
+                return True
+            time.sleep(0.05)
+        return False
+
+    try:
+        viewer.start()
+        ticks(90)
+        assert shown(False) and "ROBOT STOPPED" not in viewer._stop_note.content
+        loop.controls.stop_robot()
+        stopped = ticks(30)
+        assert all(r.stopped and r.reason == loop_tick.STOPPED for r in stopped)
+        assert shown(True) and "ROBOT STOPPED" in viewer._stop_note.content
+        text = status_html(stopped[-1])
+        assert 'data-status="stopped"' in text and 'data-stopped="1"' in text
+        assert 'data-cmd-mps="0.0000"' in text and f"color:{RED}" in text
+        assert "Resume (Shift+R)" in text
+        loop.controls.resume_robot()
+        after = ticks(30)
+        assert not any(r.stopped for r in after) and shown(False)
+        assert 'data-stopped="0"' in status_html(after[-1])
+        assert viewer.stats.errors == 0
+    finally:
+        viewer.close()
+        loop.close()
+    assert stop_html(True) != stop_html(False)
+
+
 def test_viewer_posts_valid_values_and_shows_why_it_refuses_others() -> None:
     from dsteleop.app.loop.broadcast import Broadcaster
     from dsteleop.app.loop.controls import Controls

@@ -3,10 +3,12 @@
 Everything is checked from the page itself (the DOM Viser renders, and the WebGL canvas):
 the gauges are present and their values change, the scene is drawn, a mode chosen in the
 page reaches the loop, two tabs see the same session while the loop keeps its rate, and with
-a video source the camera panel shows the video's pixels (not the grey canvas). What the
-page says it shows (issue 23, item 5): the source in the status line, the tally of trials
-after a success, the legend's wording; at 1366 x 768 every control is on screen, and a value
-typed into a parameter's box that the loop would refuse is refused there, with the reason.
+a video source the camera panel shows the video's pixels (not the grey canvas). The
+operator's stop (issue 33, item 9): the page's Stop button, and the Escape key, halt the
+robot until Resume (or Shift+R). What the page says it shows (issue 23, item 5): the source
+in the status line, the tally of trials after a success, the legend's wording; at 1366 x
+768 every control is on screen, and a value typed into a parameter's box that the loop
+would refuse is refused there, with the reason.
 Uses Debian's system Chromium (`/usr/bin/chromium`, installed by .ci/run); without it the
 tests skip with the reason. WebGL runs in software there, so waits are generous but bounded.
 A screenshot is saved under test-artifacts/; `DSTELEOP_UPDATE_SCREENSHOT=1` also copies it to
@@ -319,6 +321,7 @@ def test_controls_fit_a_laptop_window_and_bad_values_are_refused_with_the_reason
         boxes = page.locator("input.mantine-NumberInput-input")
         controls = {
             "mode": page.get_by_role("combobox").first,
+            "stop": page.get_by_role("button", name="Stop robot"),
             "reset": page.get_by_role("button", name="Reset task"),
             "record": page.get_by_role("button", name="Start", exact=True),
             "first parameter": boxes.first,
@@ -373,6 +376,79 @@ def test_two_tabs_see_one_session_and_the_loop_rate_holds(served: str, browser: 
             p.close()
 
 
+def _palm(page: Page) -> tuple[float, ...]:
+    """The achieved palm position the page shows [m] (the status's `data-palm-m`)."""
+    return tuple(float(v) for v in _status(page)["palmM"].split(","))
+
+
+def _moving(page: Page, seconds: float = 1.0) -> bool:
+    """The palm the page shows moves by more than 1 mm within `seconds`, while tracked."""
+    p0 = np.array(_palm(page))
+    page.wait_for_timeout(seconds * 1e3)
+    st = _status(page)
+    return bool(st["status"] == "tracking" and np.abs(np.array(_palm(page)) - p0).max() > 1e-3)
+
+
+def _halted(page: Page, what: str) -> None:
+    """The page says stopped and the commanded speed is 0, then (after 1 s for the arm to
+    settle) the palm it shows stays within 0.5 mm of where it is for 2 s (the demo's hand
+    moves it by ~0.1 m/s: 200 mm in that time; the palm is shown to 0.1 mm, and the held arm
+    settles by a few tenths of a millimetre)."""
+    _wait(
+        lambda: _status(page)["stopped"] == "1" and float(_status(page)["cmdMps"]) == 0.0,
+        15.0,
+        f"the robot stopped ({what})",
+        page,
+    )
+    st = _status(page)
+    assert st["status"] == "stopped", st
+    assert "ROBOT STOPPED" in page.locator(".dst-stop").inner_text()
+    assert page.get_by_role("button", name="Resume").is_enabled()
+    page.wait_for_timeout(1000)
+    ticks, palm = int(st["tick"]), _palm(page)
+    for _ in range(4):
+        page.wait_for_timeout(500)
+        st = _status(page)
+        assert st["stopped"] == "1" and float(st["cmdMps"]) == 0.0, st
+        assert np.abs(np.subtract(_palm(page), palm)).max() < 5e-4, (what, palm, st)
+    assert int(st["tick"]) > ticks + 30  # the loop ticks on: the stop is the halt, latched
+
+
+def test_stop_in_the_page_halts_the_robot_until_resume_and_so_do_the_keys(
+    served: str, browser: Browser
+) -> None:
+    """Click "Stop robot" on the served page: the robot halts (the page's palm stays put,
+    the command is 0) and stays halted while the demo's hand goes on; Resume drives it again.
+    Then the same with the keys: Escape stops, Shift+R resumes."""
+    page = _open(browser, served, *SMALL_WINDOW)
+    try:
+        stop = page.get_by_role("button", name="Stop robot")
+        resume = page.get_by_role("button", name="Resume")
+        assert _on_screen(page, stop) and _on_screen(page, resume)
+        assert resume.is_disabled() and _status(page)["stopped"] == "0"
+        assert "Escape" in page.locator(".dst-stop").inner_text()
+        _wait(lambda: _moving(page), 60.0, "the arm moving under the demo's hand", page)
+        stop.click()
+        _halted(page, "the button")
+        resume.click()
+        _wait(lambda: _status(page)["stopped"] == "0", 15.0, "the resume", page)
+        _wait(lambda: _moving(page), 60.0, "the arm moving again after Resume", page)
+        assert resume.is_disabled()
+        page.evaluate("document.activeElement?.blur()")  # the keys go to the page, no box
+        page.keyboard.press("Escape")
+        _halted(page, "Escape")
+        page.keyboard.press("Shift+R")
+        _wait(lambda: _status(page)["stopped"] == "0", 15.0, "the resume (Shift+R)", page)
+        _wait(lambda: _moving(page), 60.0, "the arm moving again after Shift+R", page)
+    finally:
+        # Never leave the shared session stopped for the other tests.
+        with contextlib.suppress(Exception):
+            if _status(page)["stopped"] == "1":
+                page.get_by_role("button", name="Resume").click()
+        page.close()
+
+
+# ----------------------------------------------------------------------------- camera
 # ----------------------------------------------------------------------------- camera
 
 VIDEO = "videos/portrait_fingers_open_close.mp4"  # 540x960 portrait, a hand opening/closing

@@ -1,7 +1,9 @@
-"""`dsteleop bench [--only GROUP] [--quick]`: benchmarks, one JSON object on stdout.
+"""`dsteleop bench [--only GROUP[,GROUP...]] [--quick]`: benchmarks, one JSON object on stdout.
 
-The groups are modules of app/bench/ (`GROUPS`); logs go to stderr. `machine` in the output
-names the CPU model, the core count and the load average the figures were measured under.
+The groups are modules of app/bench/ (`GROUPS`); `--only` takes a comma-separated list of
+them and may be given more than once (the groups run once each, in the order named); logs
+go to stderr. `machine` in the output names the CPU model, the core count and the load
+average the figures were measured under.
 """
 
 from __future__ import annotations
@@ -22,8 +24,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--only",
         action="append",
-        metavar="NAME",
-        help=f"run only these groups: {', '.join(GROUPS)}",
+        metavar="GROUP[,GROUP...]",
+        help=f"run only these groups, comma-separated (repeatable): {', '.join(GROUPS)}",
     )
     parser.add_argument("--quick", action="store_true", help="fewer repetitions (smoke run)")
     parser.add_argument(
@@ -35,11 +37,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def run(args: argparse.Namespace) -> int:
-    names = args.only or list(GROUPS)
+def groups(only: list[str] | None) -> list[str]:
+    """The groups to run: every group without `--only`, else those named (a comma-separated
+    list per `--only`, repeatable), each once, in the order named.
+
+    Raises:
+        ConfigError: an unknown group, or an `--only` that names none (one line).
+    """
+    if only is None:
+        return list(GROUPS)
+    names: list[str] = []
+    for item in only:
+        given = [n.strip() for n in item.split(",") if n.strip()]
+        if not given:
+            raise ConfigError(f"--only {item!r} names no group (choose from {', '.join(GROUPS)})")
+        names += [n for n in dict.fromkeys(given) if n not in names]
     unknown = [n for n in names if n not in GROUPS]
     if unknown:
         raise ConfigError(f"unknown bench group {unknown[0]!r} (choose from {', '.join(GROUPS)})")
+    return names
+
+
+def run(args: argparse.Namespace) -> int:
+    names = groups(args.only)
     if args.data is not None:
         if not (args.data / "videos").is_dir():
             raise InputError(f"--data {args.data}: no videos/ folder there")

@@ -20,6 +20,7 @@ import sys
 from pathlib import Path
 
 from dsteleop.app.cli.progress import Progress
+from dsteleop.app.outpaths import output_dir
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -29,7 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--to", choices=("lerobot",), required=True, help="the format (LeRobot v3.0)"
     )
-    parser.add_argument("--out", type=Path, required=True, help="the new dataset's folder")
+    parser.add_argument("--out", type=output_dir, required=True, help="the new dataset's folder")
     parser.add_argument("--task", default=None, help="the task string of every episode")
     parser.add_argument(
         "--fps", type=int, default=None, help="frames per second (the sessions' control rate)"

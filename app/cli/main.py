@@ -3,9 +3,10 @@
 Each sub-command module has `add_arguments(parser)` and `run(args) -> int`, turns its
 arguments into one typed, checked command object and imports what it runs only inside
 `run`, so `dsteleop --help` and `dsteleop COMMAND --help` stay instant and never load
-MediaPipe, PyBullet or Viser. A `DsteleopError` anywhere becomes one line on stderr and its
-exit code (2; 3 for a lost robot, `RobotLostError`; the only exceptions caught here); Ctrl-C
-exits with 130.
+MediaPipe, PyBullet or Viser. Every path a command writes is checked before it runs
+(`app/outpaths.py`: the options whose `type` is `output_file` or `output_dir`). A
+`DsteleopError` anywhere becomes one line on stderr and its exit code (2; 3 for a lost
+robot, `RobotLostError`; the only exceptions caught here); Ctrl-C exits with 130.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import sys
 from collections.abc import Sequence
 
 from dsteleop import __version__
+from dsteleop.app.outpaths import check_outputs
 from dsteleop.errors import DsteleopError
 
 # name -> (module, one-line help). Add a command by adding a line here.
@@ -77,7 +79,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     module = importlib.import_module(COMMANDS[command][0])
     sub_action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    module.add_arguments(sub_action.choices[command])
+    sub_parser = sub_action.choices[command]
+    module.add_arguments(sub_parser)
     args = parser.parse_args(argv)
     from dsteleop.app.cli.native_log import route_native_stderr
 
@@ -89,6 +92,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             stream=sys.stderr,
         )
         try:
+            check_outputs(sub_parser, args)  # every path it writes, before anything opens
             return int(module.run(args))
         except DsteleopError as exc:
             print(f"dsteleop {command}: error: {exc}", file=sys.stderr)

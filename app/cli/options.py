@@ -39,6 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from dsteleop.app.loop import LoopConfig, LostPolicy
+from dsteleop.app.outpaths import check_output_file, output_dir, output_file
 from dsteleop.app.rrd.target import DEFAULT_ADDR, RerunTarget
 from dsteleop.arbitration import ArbitrationConfig, Mode, registered
 from dsteleop.errors import ConfigError, InputError
@@ -260,19 +261,19 @@ def add_loop_options(
         type=float,
         default=None,
         metavar="S",
-        help="reset the task S seconds after each outcome, for the next trial "
-        "(0: never; default 4 for serve, 0 for run, which stops at the outcome)",
+        help="serve: reset the task S seconds after each outcome, for the next trial "
+        "(0: never; default 4); run stops at its first outcome and refuses it",
     )
     parser.add_argument(
         "--history",
-        type=Path,
+        type=output_file,
         default=None,
         metavar="FILE",
         help="the operator's previous attempts (eq 6): read from FILE at start, each finished "
         "segment appended to it (default: none, an empty history, so a run depends only on "
         "its options and seed)",
     )
-    parser.add_argument("--record", type=Path, default=None, metavar="DIR", help=record_help)
+    parser.add_argument("--record", type=output_dir, default=None, metavar="DIR", help=record_help)
     parser.add_argument(
         "--record-video",
         action="store_true",
@@ -280,7 +281,7 @@ def add_loop_options(
     )
     parser.add_argument(
         "--record-lerobot",
-        type=Path,
+        type=output_dir,
         default=None,
         metavar="DIR",
         help="also write the recorded episodes as a LeRobot v3.0 dataset into the new or empty "
@@ -294,7 +295,7 @@ def add_loop_options(
     )
     parser.add_argument(
         "--rerun",
-        type=Path,
+        type=output_file,
         default=None,
         metavar="FILE.rrd",
         help="write a Rerun recording while running (open with: rerun FILE.rrd)",
@@ -478,16 +479,10 @@ def check_loop_bounds(
 
 
 def check_history_path(path: Path | None) -> Path | None:
-    """`--history FILE`: a file (or a new one) in a folder that exists.
+    """`--history FILE`: a file (or a new one) that can be written (`outpaths`): it is first
+    written at the first finished segment, mid-trial.
 
     Raises:
-        ConfigError: it names a folder, or its folder does not exist.
+        InputError: it names a folder, its folder does not exist or cannot be written.
     """
-    if path is None:
-        return None
-    path = Path(path)
-    if path.is_dir():
-        raise ConfigError(f"--history must name a file, got the folder {path}")
-    if not path.parent.is_dir():
-        raise ConfigError(f"--history: no such folder: {path.parent}")
-    return path
+    return None if path is None else check_output_file(path, "--history")

@@ -1,25 +1,9 @@
-"""Small pieces the commands share: an output folder check and a terminal progress bar."""
+"""A terminal progress bar the commands share (their output folders: `app/outpaths.py`)."""
 
 from __future__ import annotations
 
 import time
-from pathlib import Path
 from typing import IO
-
-from dsteleop.errors import InputError
-
-
-def prepare_out_dir(path: Path) -> Path:
-    """Create `path` if needed and check it is writable (one-line error otherwise)."""
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        probe = path / ".dsteleop-write-test"
-        probe.write_text("")
-        probe.unlink()
-    except OSError as exc:
-        reason = exc.strerror or str(exc)
-        raise InputError(f"cannot write to output directory {str(path)!r}: {reason}") from None
-    return path
 
 
 class Progress:

@@ -38,7 +38,8 @@ from pathlib import Path
 from typing import Any
 
 from dsteleop.app.cli.options import add_config_options, add_video_options, arbitration_config
-from dsteleop.app.cli.progress import Progress, prepare_out_dir
+from dsteleop.app.cli.progress import Progress
+from dsteleop.app.outpaths import created_dir, output_dir, output_file
 from dsteleop.arbitration import ArbitrationConfig, Mode, registered
 from dsteleop.errors import ConfigError, InputError
 from dsteleop.tracking.sources import check_rotation
@@ -107,7 +108,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "each session in the mode it was recorded in)",
     )
     parser.add_argument(
-        "--out", required=True, type=Path, help="output folder for metrics.json and plots"
+        "--out", required=True, type=output_dir, help="output folder for metrics.json and plots"
     )
     parser.add_argument(
         "--robot",
@@ -128,7 +129,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     parser.add_argument(
         "--rerun",
-        type=Path,
+        type=output_file,
         default=None,
         metavar="FILE.rrd",
         help="also write a Rerun recording of every episode and mode (open with: rerun FILE.rrd)",
@@ -325,12 +326,17 @@ def _work(unit: Unit) -> list[Any]:
 
 def run(args: argparse.Namespace) -> int:
     cmd = command(args)
+    # A replay that fails leaves no empty --out behind (outpaths.created_dir).
+    with created_dir(cmd.out) as out:
+        return _run(cmd, out)
+
+
+def _run(cmd: ReplayCommand, out: Path) -> int:
+    from dsteleop.app.lerobot.reader import is_dataset, read_dataset
     from dsteleop.app.replay import core
     from dsteleop.app.session.reader import read_session
 
-    out = prepare_out_dir(cmd.out)
     # Validate every input before the long work starts; a session's episodes are the units.
-    from dsteleop.app.lerobot.reader import is_dataset, read_dataset
 
     episodes: dict[Path, int] = {}
     for p in cmd.inputs:

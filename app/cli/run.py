@@ -12,6 +12,9 @@ or still lost when the trial reaches its time limit without an outcome, ends the
 summary is printed (`stopped_by: robot-lost`), the recording is closed complete, and the
 command exits with code 3 and a one-line reason (`RobotLostError`), so a script can tell a
 dead robot from a normal run. The loop itself halts the robot smoothly as soon as it is lost.
+
+`run` is one trial: it stops at the first outcome, so `--reset-after` (a loop option shared
+with `serve`) is refused unless 0.
 """
 
 from __future__ import annotations
@@ -83,6 +86,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def command(args: argparse.Namespace) -> RunCommand:
     options = loop_options(args)
+    reset_after_s = options.loop.reset_after_s
+    if reset_after_s > 0:  # no next trial follows to reset for
+        given = "--reset-after" if args.reset_after else f"--config {args.config}: reset_after_s"
+        raise ConfigError(
+            f"{given} {reset_after_s:g}: run stops at its first outcome, so no next trial "
+            "follows; serve runs trial after trial (its --reset-after), or run again with "
+            "another --seed"
+        )
     if not args.max_seconds > 0:
         raise ConfigError(f"--max-seconds must be > 0, got {args.max_seconds}")
     if not (math.isfinite(args.robot_lost_s) and args.robot_lost_s > 0):
@@ -117,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             session = opts.record
             if session is None and opts.record_lerobot is not None:
-                from dsteleop.app.lerobot.live import SESSIONS
+                from dsteleop.app.lerobot import SESSIONS
                 from dsteleop.app.session.writer import new_session_folder
 
                 root = opts.record_lerobot / SESSIONS

@@ -137,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
     raise_priority()  # the loop ahead of other work on the machine (a local browser)
     root = opts.record or default_record_root()
     if opts.record is None and opts.record_lerobot is not None:
-        from dsteleop.app.lerobot.live import SESSIONS
+        from dsteleop.app.lerobot import SESSIONS
 
         root = opts.record_lerobot / SESSIONS  # the sessions behind the dataset
     built = build(opts, realtime=True, export_scene=True, record_root=root)
@@ -183,6 +183,9 @@ def run(args: argparse.Namespace) -> int:
         "recording": recordings[-1] if recordings else None,
         "recordings": recordings,
         "timing": loop.timing_summary(),
+        # The page's Stop presses (each latched until Resume), and whether it ended stopped.
+        "operator_stops": loop.stops,
+        "ended_stopped": loop.stopped,
     }
     if built.rerun is not None:
         summary["rerun"] = built.rerun.summary()

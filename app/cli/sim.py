@@ -26,8 +26,9 @@ from pathlib import Path
 from typing import Any
 
 from dsteleop.app.cli.options import add_config_options, arbitration_config, config_from_file
-from dsteleop.app.cli.progress import Progress, prepare_out_dir
+from dsteleop.app.cli.progress import Progress
 from dsteleop.app.cli.world_options import add_world_arguments, world_overrides
+from dsteleop.app.outpaths import created_dir, output_dir
 from dsteleop.arbitration import Mode, registered
 from dsteleop.errors import ConfigError, InputError
 
@@ -70,7 +71,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--seed", type=int, default=0, help="master seed (default 0)")
     parser.add_argument(
-        "--out", required=True, metavar="DIR", help="output directory (created if missing)"
+        "--out",
+        required=True,
+        type=output_dir,
+        metavar="DIR",
+        help="output directory (created if missing)",
     )
     parser.add_argument(
         "--workers",
@@ -269,11 +274,16 @@ def read_cell_configs(
 def run(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
     cmd = command(args)
+    # A study that fails leaves no empty --out behind (outpaths.created_dir).
+    with created_dir(cmd.out) as out:
+        return _run(cmd, out, t0)
+
+
+def _run(cmd: SimCommand, out: Path, t0: float) -> int:
     from dsteleop.app.study import core, figures, report
     from dsteleop.app.study.run import simulate_all
 
     cfg = cmd.study
-    out = prepare_out_dir(cmd.out)
     if cmd.sweep is not None:
         from dsteleop.app.study.sweep import run_command
 

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from dsteleop.app.cli.options import add_video_options, check_video_complete
+from dsteleop.app.outpaths import output_file
 from dsteleop.arbitration.se3 import so3_log
 from dsteleop.errors import ConfigError, InputError
 from dsteleop.tracking.detector import DetectorConfig
@@ -72,8 +73,12 @@ class TrackCommand:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("source", help=SOURCE_GRAMMAR.replace("demo, auto, ", ""))
-    parser.add_argument("--out", required=True, type=Path, help="JSON Lines output, one per frame")
-    parser.add_argument("--preview", type=Path, help="write an MP4 with landmarks and palm frame")
+    parser.add_argument(
+        "--out", required=True, type=output_file, help="JSON Lines output, one per frame"
+    )
+    parser.add_argument(
+        "--preview", type=output_file, help="write an MP4 with landmarks and palm frame"
+    )
     parser.add_argument(
         "--task-model",
         type=Path,
@@ -112,8 +117,6 @@ def _command(args: argparse.Namespace) -> TrackCommand:
         raise ConfigError(f"--max-hands must be >= 1, got {args.max_hands}")
     if not (math.isfinite(args.hfov_deg) and 1.0 < args.hfov_deg < 179.0):
         raise ConfigError(f"--hfov-deg must be in (1, 179), got {args.hfov_deg}")
-    if not args.out.parent.is_dir():
-        raise InputError(f"folder of --out does not exist: {args.out.parent}")
     source = parse_source(args.source)
     if source.kind in ("demo", "auto"):
         raise ConfigError(f"track reads a camera, a video, images or synthetic, not {source.kind}")

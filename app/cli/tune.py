@@ -44,8 +44,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 from dsteleop.app.cli.options import arbitration_config
-from dsteleop.app.cli.progress import Progress, prepare_out_dir
+from dsteleop.app.cli.progress import Progress
 from dsteleop.app.cli.world_options import add_world_arguments, world_overrides
+from dsteleop.app.outpaths import created_dir, output_dir
 from dsteleop.errors import ConfigError, InputError
 
 if TYPE_CHECKING:  # the command imports them when it runs (an instant --help)
@@ -143,7 +144,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="widening rounds: a best value on its range's edge widens the range there and "
         "the campaign is run again, up to N times (default 2; 0: off; docs/tune.md)",
     )
-    a("--out", required=True, type=Path, metavar="DIR", help="output folder (holds the study)")
+    a("--out", required=True, type=output_dir, metavar="DIR", help="output folder (the study's)")
     a(
         "--space",
         action="append",
@@ -368,13 +369,18 @@ def _check(settings: TuneSettings) -> TuneSettings:
 def run(args: argparse.Namespace) -> int:
     t_start = time.monotonic()
     cmd = command(args)
+    # A tuning run that fails leaves no empty --out behind (outpaths.created_dir).
+    with created_dir(cmd.out) as out:
+        return _run(cmd, out, t_start)
+
+
+def _run(cmd: TuneCommand, out: Path, t_start: float) -> int:
     from dsteleop.app.tune import driver
     from dsteleop.app.tune.cluster import RayExecutor
     from dsteleop.app.tune.edges import widen
     from dsteleop.app.tune.holdout import HoldoutError
     from dsteleop.app.tune.space import out_of_domain
 
-    out = prepare_out_dir(cmd.out)
     storage = out / driver.STORAGE_FILE
     if cmd.resume:
         if not storage.exists():

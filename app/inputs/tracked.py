@@ -46,6 +46,11 @@ class TrackedHandInput:
         on_start: starts the source delivering (a live stream's threads), or None.
         end_reason: what the loop says once the input of a finished source is stale.
         arrivals: builds the `ports.InputArrivals` of this input (None: the loop paces it).
+
+    Attributes:
+        stream: the live tracking stream behind the input (`from_stream`; its `captured`,
+            `dropped` and `tracked` counts say how many frames the tracker kept up with), or
+            None.
     """
 
     def __init__(
@@ -73,6 +78,7 @@ class TrackedHandInput:
         self._current: HandSample | None = None
         self._calibrate = False
         self._arrivals = None if arrivals is None else arrivals(self)
+        self.stream: TrackingStream | None = None
 
     @classmethod
     def from_stream(
@@ -93,7 +99,7 @@ class TrackedHandInput:
             if not stream.started:
                 stream.start()
 
-        return cls(
+        hand = cls(
             lambda _now: stream.latest(),
             mapping,
             input_delay_s,
@@ -103,6 +109,8 @@ class TrackedHandInput:
             on_start=start,
             arrivals=(lambda hand: _StreamArrivals(stream, hand)) if follow else None,
         )
+        hand.stream = stream
+        return hand
 
     @classmethod
     def from_source(

@@ -23,6 +23,9 @@
     stats.json      every numeric feature with min, max, mean, std, count, q01..q99 of its
                     shape ((3, 1, 1) for the camera), count = total_frames
     dsteleop ticks  one tick record per frame, in the frames' order
+    times           `dsteleop.t_s` counts from the episode's start (0 at its first frame), and
+                    with the episode's `dsteleop/t_start_s` it is each tick record's loop time
+                    (to 1 us)
 """
 
 from __future__ import annotations
@@ -40,6 +43,8 @@ from dsteleop.app.lerobot import layout as L  # noqa: N812  (the layout, named o
 
 STAT_KEYS = ("min", "max", "mean", "std", "count", "q01", "q10", "q50", "q90", "q99")
 TS_TOLERANCE_S = 1e-4
+#: The frames' loop times (start + since the start, float64) against the tick records' [s].
+T_TOLERANCE_S = 1e-6
 
 
 def _expected_type(ft: dict[str, Any]) -> pa.DataType:
@@ -148,7 +153,10 @@ def problems(root: Path) -> list[str]:  # noqa: PLR0911  (each early return: not
     out += _camera_ticks(data, fps)
     out += _tasks(root, int(info["total_tasks"]))
     out += _stats(root, feats, total_frames)
-    out += _ticks(root, data)
+    ticks = _ticks(root, data)
+    out += ticks
+    if not ticks:
+        out += _times(root, data, eps)
     return out
 
 
@@ -269,3 +277,41 @@ def _ticks(root: Path, data: pa.Table) -> list[str]:
     ):
         return ["dsteleop/ticks: not one tick record per frame"]
     return []
+
+
+def _times(root: Path, data: pa.Table, eps: list[dict[str, Any]]) -> list[str]:
+    """The frames' time columns since each episode's start, the start in the episode table:
+    together the tick records' loop times (module docstring)."""
+    if "dsteleop.t_s" not in data.column_names:
+        return []
+    if any(L.T_START not in r for r in eps):
+        return [f"meta/episodes: no {L.T_START} (the start the time columns count from)"]
+    t = pa.concat_tables([pq.read_table(p) for p in sorted((root / "dsteleop/ticks").glob("*/*"))])
+    loop_t = dict(
+        zip(
+            t.column("index").to_pylist(),
+            (float(json.loads(x)["t"]) for x in t.column(L.TICK).to_pylist()),
+            strict=True,
+        )
+    )
+    index = data.column("index").to_numpy()
+    ep = data.column("episode_index").to_numpy()
+    frame = data.column("frame_index").to_numpy()
+    rel = data.column("dsteleop.t_s").to_numpy()
+    out = []
+    for r in eps:
+        e = int(r["episode_index"])
+        m = ep == e
+        if not m.any():
+            continue
+        first = rel[m][frame[m] == 0]
+        if first.size and first[0] != 0.0:
+            out.append(f"episode {e}: dsteleop.t_s is {first[0]:g} s at its first frame, not 0")
+        want = np.array([loop_t[int(i)] for i in index[m]])
+        err = np.abs(float(r[L.T_START]) + rel[m] - want).max()
+        if err > T_TOLERANCE_S:
+            out.append(
+                f"episode {e}: {L.T_START} + dsteleop.t_s is {err:.3g} s off the tick records' "
+                "loop times"
+            )
+    return out

@@ -19,13 +19,19 @@ A dataset is a folder (docs/datasets.md has the mapping column by column):
 
 One frame is one control tick: `timestamp` is frame_index / fps (what LeRobot's reader
 expects: evenly spaced frames, and the video frame at `from_timestamp + timestamp`), the
-loop's own time of the tick rides along in `dsteleop.t_s`. `observation.state` is the
-robot's achieved palm pose and finger openness when the tick started (the previous tick's
-result, or the reset state at an episode's first tick), then, for a session that recorded
-them, the robot's joint positions at the same moment; `action` the state the tick commanded
-(X_next), the palm pose and openness only. Statistics are those of LeRobot's
-`compute_stats` (quantiles exact here, where LeRobot estimates them from histograms);
-strings have none.
+loop's own time of the tick rides along in `dsteleop.t_s`, and the camera frame's capture
+time in `dsteleop.camera_t_s`, both since the episode's first tick (`dsteleop/t_start_s` in
+the episode table, the loop's clock then): LeRobot's reader hands every float column to
+PyTorch as float32, whose 24-bit mantissa keeps a time t to about t * 6e-8 s (1 us at 16 s,
+2 us at a minute, 4 us at the trials' default limit of 120 s), where the loop's clock
+itself (a monotonic clock, days of uptime: 1e5 s and more) would lose milliseconds
+(`MARK_VERSION` 2; 1 held the loop's clock itself).
+`observation.state` is the robot's achieved palm pose and finger openness when the tick
+started (the previous tick's result, or the reset state at an episode's first tick), then,
+for a session that recorded them, the robot's joint positions at the same moment; `action`
+the state the tick commanded (X_next), the palm pose and openness only. Statistics are those
+of LeRobot's `compute_stats` (quantiles exact here, where LeRobot estimates them from
+histograms); strings have none.
 
 Only pyarrow and numpy here (no pandas): `tasks.parquet` carries the pandas metadata that
 makes the task string its index when pandas reads it.
@@ -55,7 +61,13 @@ CODEBASE_VERSION = "v3.0"
 #: the tick records' schema (beside LeRobot's files: LeRobot warns about keys it does not know
 #: in info.json, and drops them when it rewrites the file).
 MARK = "dsteleop/dataset.json"
-MARK_VERSION = 1
+#: 2: `dsteleop.t_s` and `dsteleop.camera_t_s` since the episode's start (`T_START`); 1: on
+#: the loop's clock.
+MARK_VERSION = 2
+#: The episode table's column with the loop's time of each episode's first tick [s]: what
+#: the time columns count from (float64 there: LeRobot leaves the episode table's values as
+#: they are).
+T_START = "dsteleop/t_start_s"
 CAMERA = "observation.images.camera"
 INFO = "meta/info.json"
 STATS = "meta/stats.json"
@@ -188,7 +200,8 @@ def frame_columns(
     n_joints: int = 0,
 ) -> dict[str, Any]:
     """The data columns of one episode's ticks (module docstring): numpy arrays, strings as
-    a list. `camera_t_s`: the capture time of the video frame of each tick, or None;
+    a list; the times since the episode's first tick. `camera_t_s`: the capture time of the
+    video frame of each tick (on the loop's clock), or None;
     `n_joints`: the joints the session names (their positions end `observation.state`).
 
     Raises:
@@ -197,6 +210,7 @@ def frame_columns(
     n = len(records)
     dims = records[0].dims
     D = len(dims)
+    t0 = records[0].t_s  # the time columns count from the episode's first tick (T_START)
     state = state_vectors(at_start(records, lambda r: r.X_current, records[0].X_reset))
     if n_joints:
         state = np.concatenate([state, joint_vectors(records, n_joints)], axis=1)
@@ -212,9 +226,9 @@ def frame_columns(
                 a[k] = getattr(r.step, name)
         cols[key] = a
     cols["observation.arbitrated"] = arbitrated.astype(np.int64)
-    cols["dsteleop.t_s"] = np.array([r.t_s for r in records], dtype=np.float64)
+    cols["dsteleop.t_s"] = np.array([r.t_s for r in records], dtype=np.float64) - t0
     if camera_t_s is not None:
-        cols["dsteleop.camera_t_s"] = np.asarray(camera_t_s, dtype=np.float64)
+        cols["dsteleop.camera_t_s"] = np.asarray(camera_t_s, dtype=np.float64) - t0
     # As the session writer writes a tick (NaN as null: JSON has none).
     cols[TICK] = [
         json.dumps(clean(encode(r)), separators=(",", ":"), allow_nan=False) for r in records

@@ -35,9 +35,6 @@ log = logging.getLogger(__name__)
 
 #: How long an episode waits for the camera's frames to reach its last tick [s].
 FRAME_WAIT_S = 2.0
-#: Where the sessions go when the command records none itself (inside the dataset folder,
-#: hidden: LeRobot reads only meta/, data/ and videos/).
-SESSIONS = ".dsteleop-sessions"
 
 Item = tuple[Path, dict[str, Any], Episode, tuple[TickRecord, ...]]
 

@@ -8,6 +8,11 @@ a dataset's episodes in any mode like a session's, and gets the same numbers.
 
 Only the episodes info.json counts are read: a live recording killed between writing an
 episode's files and its metadata leaves that episode out, as LeRobot's own metadata does.
+
+The frame table's time columns count from each episode's start (`layout.MARK_VERSION` 2);
+`frame_times` gives them back on the loop's clock, adding the episode table's
+`dsteleop/t_start_s` (a dataset of layout 1 held the loop's clock itself). A replay needs
+neither: the tick records hold the loop's times at full precision.
 """
 
 from __future__ import annotations
@@ -18,8 +23,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pyarrow as pa  # type: ignore[import-untyped]
 import pyarrow.parquet as pq  # type: ignore[import-untyped]
+from numpy.typing import NDArray
 
 from dsteleop.app.lerobot import layout as L  # noqa: N812  (the layout, named once)
 from dsteleop.app.session.episodes import Episode
@@ -42,12 +49,63 @@ class Dataset:
         info: meta/info.json.
         episodes: the episode table's rows (without the statistics), by episode index.
         sessions: each episode as a session's view of it.
+        layout: the version of dsteleop's layout it was written in (`layout.MARK_VERSION`).
     """
 
     root: Path
     info: dict[str, Any]
     episodes: tuple[dict[str, Any], ...]
     sessions: tuple[Session, ...]
+    layout: int = L.MARK_VERSION
+
+    def t_start_s(self, episode: int) -> float:
+        """The loop's time of the episode's first tick [s], what its frames' time columns
+        count from (0 in a dataset of layout 1, whose columns held the loop's clock)."""
+        if self.layout < 2:
+            return 0.0
+        return float(self.episodes[episode][L.T_START])
+
+
+@dataclass(frozen=True)
+class FrameTimes:
+    """An episode's frame times on the loop's clock [s], float64 (`frame_times`).
+
+    Attributes:
+        t_s: each tick's start.
+        camera_t_s: the capture time of each tick's camera frame, or None without a camera.
+    """
+
+    t_s: NDArray[np.float64]
+    camera_t_s: NDArray[np.float64] | None
+
+
+def frame_times(dataset: Dataset, episode: int) -> FrameTimes:
+    """The frame table's times of one episode back on the loop's clock: its columns (since
+    the episode's start) plus `Dataset.t_start_s` (module docstring).
+
+    Raises:
+        InputError: the data files cannot be read, or hold no frame of that episode.
+    """
+    root = dataset.root
+    try:
+        data = _parquet_rows(root, "data/*/*.parquet")
+        if data is None:
+            raise InputError(f"{root}: the dataset has no data file")
+        mask = data.column("episode_index").to_numpy() == episode
+        order = np.argsort(data.column("frame_index").to_numpy()[mask], kind="stable")
+        t0 = dataset.t_start_s(episode)
+
+        def column(name: str) -> NDArray[np.float64]:
+            values = data.column(name).to_numpy()[mask][order]
+            return np.asarray(values, dtype=np.float64) + t0
+
+        cam = column("dsteleop.camera_t_s") if "dsteleop.camera_t_s" in data.column_names else None
+        t = column("dsteleop.t_s")
+    except (OSError, pa.ArrowException, KeyError, IndexError) as exc:
+        raise InputError(f"{root}: malformed dataset ({type(exc).__name__}: {exc})") from None
+    if not t.size:
+        raise InputError(f"{root}: no frame of episode {episode}")
+    return FrameTimes(t, cam)
 
 
 def _parquet_rows(root: Path, pattern: str) -> pa.Table | None:
@@ -88,6 +146,7 @@ def read_dataset(root: Path) -> Dataset:
     root = Path(root)
     info = read_info(root)
     total = int(info.get("total_episodes", 0))
+    layout = _layout_version(root)
     try:
         eps = _parquet_rows(root, "meta/episodes/*/*.parquet")
         ticks = _parquet_rows(root, "dsteleop/ticks/*/*.parquet")
@@ -108,7 +167,26 @@ def read_dataset(root: Path) -> Dataset:
             sessions.append(_episode_session(root, row, by_episode.get(e, [])))
     except (OSError, pa.ArrowException, KeyError, ValueError, TypeError) as exc:
         raise InputError(f"{root}: malformed dataset ({type(exc).__name__}: {exc})") from None
-    return Dataset(root, info, tuple(rows[e] for e in range(total)), tuple(sessions))
+    return Dataset(root, info, tuple(rows[e] for e in range(total)), tuple(sessions), layout)
+
+
+def _layout_version(root: Path) -> int:
+    """The layout version its mark file says (`layout.MARK`).
+
+    Raises:
+        InputError: the mark is unreadable, or of a layout newer than this reads.
+    """
+    path = root / L.MARK
+    try:
+        version = int(json.loads(path.read_text(encoding="utf-8"))["layout"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InputError(f"{path}: unreadable ({type(exc).__name__}: {exc})") from None
+    if not 1 <= version <= L.MARK_VERSION:
+        raise InputError(
+            f"{root}: written in dsteleop's dataset layout {version}; this version reads "
+            f"layouts 1 to {L.MARK_VERSION}"
+        )
+    return version
 
 
 def _episode_session(root: Path, row: dict[str, Any], lines: list[str]) -> Session:

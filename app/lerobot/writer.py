@@ -242,6 +242,7 @@ class DatasetWriter:
                 "dsteleop/outcome_reason": "" if outcome is None else outcome.reason,
                 "dsteleop/utensil": "" if ep is None else ep.utensil,
                 "dsteleop/duration_s": float(ticks[-1] - ticks[0] if ep is None else ep.duration_s),
+                L.T_START: float(ticks[0]),
                 "dsteleop/episode": json.dumps(clean(None if ep is None else ep.to_dict())),
                 "dsteleop/session_meta": json.dumps(clean(view.meta), allow_nan=False),
             }

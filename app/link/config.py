@@ -34,7 +34,7 @@ from typing import Any
 
 from dsteleop.app.ports import RobotLimits
 from dsteleop.errors import ConfigError, InputError
-from dsteleop.robot.description import RobotDescription, load_description
+from dsteleop.robot.description import RobotDescription, description_path, load_description
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 #: A Zenoh locator: protocol/address:port (tcp, udp, tls, quic, ws; IPv6 in brackets).
@@ -223,7 +223,8 @@ def read_link_config(path: Path | str) -> LinkConfig:
     """Read a link configuration file (module docstring).
 
     Raises:
-        InputError: the file is missing or not JSON.
+        InputError: the file is missing or not JSON, or its `robot` names no robot
+            description (the message names the file and the field, not `--robot`).
         ConfigError: a field is unknown or out of its domain.
     """
     p = Path(path)
@@ -241,6 +242,8 @@ def read_link_config(path: Path | str) -> LinkConfig:
     robot = Path(config.robot)
     if robot.suffix == ".toml" and not robot.is_absolute():
         config = dataclasses.replace(config, robot=str(p.parent / robot))
+    # The robot is the file's (its field `robot`), not the command line's: say so.
+    description_path(config.robot, given_by=f"link config {p}: field robot")
     return config
 
 

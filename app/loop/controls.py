@@ -3,11 +3,14 @@
 GUI callbacks (the browser view, tests, the CLI) never touch the loop's state directly: they
 post requests here, and the loop takes all pending requests once per tick, at the start of
 the tick, and applies them in its own thread. Requests of the same kind coalesce (the last
-one wins), so a burst of slider events costs the loop one change.
+one wins), so a burst of slider events costs the loop one change. The one exception is the
+operator's stop: a Stop and a Resume posted within the same tick leave the robot stopped (from
+two tabs at once, the stop wins; a Resume pressed again a tick later resumes).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 from dataclasses import dataclass, field
 from typing import Any
@@ -24,6 +27,8 @@ class Requests:
         utensil: the utensil to pick at the next reset.
         record: True to start recording, False to stop; None: no change.
         params: hyper-parameter changes by name (kappa, p, q, b, window, goal_noise_m, ...).
+        stop: True to stop the robot (latched: it halts as for a lost hand and stays halted),
+            False to resume; None: no change.
     """
 
     mode: str | None = None
@@ -32,6 +37,7 @@ class Requests:
     utensil: str | None = None
     record: bool | None = None
     params: dict[str, Any] = field(default_factory=dict)
+    stop: bool | None = None
 
     @property
     def empty(self) -> bool:
@@ -68,6 +74,16 @@ class Controls:
 
     def set_params(self, **params: Any) -> None:
         self._update(params=params)
+
+    def stop_robot(self) -> None:
+        """Stop the robot (latched until `resume_robot`)."""
+        self._update(stop=True)
+
+    def resume_robot(self) -> None:
+        """Let the hand drive the robot again after a stop (ignored if a stop is pending)."""
+        with self._lock:
+            if self._pending.stop is not True:  # a stop in the same tick wins
+                self._pending = dataclasses.replace(self._pending, stop=False)
 
     def take(self) -> Requests:
         """All pending requests, clearing them (called by the loop once per tick)."""

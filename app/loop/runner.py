@@ -4,10 +4,11 @@ rate or following the camera's frames (`timing.RateClock`).
 `TeleopLoop` owns the clock and the tick's side effects; the decisions are the pure
 functions of `tick.py`. One tick:
 
-    requests  <- controls (mode, calibrate, reset, params, recording), taken once
+    requests  <- controls (stop/resume, mode, calibrate, reset, params, recording), taken once
     input     <- hand.poll(now), re-anchored when the hand comes back
-    decide    -- tick.decide: arbitration, or the halt ramp / assist while lost (the hand,
-                 or the robot: its state missing or older than ports.ROBOT_STALE_S)
+    decide    -- tick.decide: arbitration, or the halt ramp / assist while lost (the hand),
+                 or the halt ramp while the robot is lost (its state missing or older than
+                 ports.ROBOT_STALE_S) or the operator's stop is latched
     robot     -> robot.apply(X_next, seq, now); robot.state(now): X_current and joints
     task      <- task.update(state): phase, events, outcome (not while the robot is lost)
     absorb    -- tick.absorb: the robot's and the task's report, segments, the history
@@ -170,6 +171,10 @@ class TeleopLoop:
         #: Why `run` stopped on a lost robot ("" if it did not; `run`'s robot_lost_limit_s).
         self.robot_lost_end = ""
         self._joints: Array | None = None  # the robot's last measured joints (None: none)
+        #: The operator's stop is latched (Stop pressed, Resume not yet): the robot halts.
+        self.stopped = False
+        #: Stops the operator pressed since the start (a Stop while stopped is not counted).
+        self.stops = 0
         reset = self._reset_world(None)
         self.state = tick.start(reset.X, self.arbiter, history)
         self.utensil = str(task.describe().get("utensil", ""))
@@ -232,6 +237,15 @@ class TeleopLoop:
         """Apply the operator's requests (in the loop's thread); each is recorded as a note."""
         if req.empty:
             return
+        if req.stop is not None and req.stop != self.stopped:
+            # Latched: the halt of a lost hand (tick.decide's `halt`) until Resume.
+            self.stopped = req.stop
+            self.stops += req.stop
+            self._notes.append("stop" if req.stop else "resume")
+            if req.stop:
+                log.warning("stopped by the operator: the robot halts until Resume")
+            else:
+                log.info("resumed by the operator")
         if req.params:
             self._set_params(req.params)
         if req.mode is not None:
@@ -382,7 +396,7 @@ class TeleopLoop:
             now,
             self._history_term(),
             ended,
-            self._robot_lost,
+            self._robot_lost or (tick.STOPPED if self.stopped else ""),
         )
         t_arb = self.clock.now()
         self._seq += 1
@@ -416,6 +430,7 @@ class TeleopLoop:
             timing=timing,
             X_reset=None if reset_state is None else reset_state.X,
             joints_reset=None if reset_state is None else _joints_of(reset_state),
+            stopped=self.stopped,
         )
         if self._recorder is not None:
             record = self._record(self._recorder, record)

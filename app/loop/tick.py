@@ -12,6 +12,8 @@ A tick has two halves around the robot (`runner.TeleopLoop` calls them and the p
         no fresh hand, policy "assist":
             alpha = 1 on every dimension at assist_speed of the policy's speed, until the
             robot is within assist_goal_tolerance_m of the goal
+        told to halt (`halt`: the robot is lost, or the operator pressed Stop):
+            the halt ramp as for a lost hand, whatever the hand does and whatever the policy
     plant.apply(X_next)
     absorb(state', plant_step)  ->  state'', segment ended?
         the achieved state, the outcome, and at the end of a pick or place segment: one more
@@ -53,6 +55,8 @@ Array = NDArray[np.float64]
 NO_INPUT = "no input yet"
 STALLED = "camera stalled"
 FINISHED = "task finished"
+#: The reason while the operator's stop is latched (the page's Stop, until Resume).
+STOPPED = "stopped by the operator"
 
 
 @dataclass(frozen=True)
@@ -155,14 +159,15 @@ def decide(
     now_s: float,
     history_term: Array | None,
     ended: str = "",
-    robot_lost: str = "",
+    halt: str = "",
 ) -> tuple[LoopState, Decision]:
     """The first half of a tick (module docstring). `inp` is already re-anchored; `ended`
-    says why there is no more input once the source has ended ("" while it runs);
-    `robot_lost` why the robot cannot be driven (its state is missing or stale: the loop
-    halts as for a lost hand, "" while it can)."""
+    says why there is no more input once the source has ended ("" while it runs); `halt`
+    why the robot must not be driven whatever the hand does: `ports.ROBOT_LOST` (its state
+    is missing or stale) or `STOPPED` (the operator's latched stop). The loop then halts
+    exactly as for a lost hand, never assisted ("" while it may be driven)."""
     dt = cfg.dt_s
-    reason = robot_lost or staleness(inp, now_s, cfg, ended)
+    reason = halt or staleness(inp, now_s, cfg, ended)
     if not reason and inp is not None and inp.X_human is not None and goal is not None:
         X_h = inp.X_human
         X_h_prev = X_h if state.lost or state.X_human_prev is None else state.X_human_prev
@@ -200,7 +205,7 @@ def decide(
     done = goal is None  # the task has its outcome: the robot halts, whatever the hand does
     reason = outcome_words(state.outcome) if done else (reason or NO_INPUT)
     assisted: ArbitrationStep | None = None
-    if cfg.lost_policy is LostPolicy.ASSIST and goal is not None and not robot_lost:
+    if cfg.lost_policy is LostPolicy.ASSIST and goal is not None and not halt:
         U_cmd, assisted = _assist(state, cfg, goal)
         status = Status.ASSIST
     else:

@@ -94,6 +94,8 @@ class TickRecord:
             after a task reset), else None; a replay against the recorded robot starts there.
         joints_reset: the robot's joint positions at that reset [rad, or m for a prismatic
             joint] (`Robot.joint_names` order), or None (no reset, or no joints reported).
+        stopped: the operator's stop was latched during this tick (the page's Stop, until
+            Resume): the robot halts as for a lost hand; written only when True.
         recording: the recording in progress, or None (for the view; not written).
     """
 
@@ -114,6 +116,7 @@ class TickRecord:
     timing: Mapping[str, float] = field(default_factory=dict)
     X_reset: HandState | None = None
     joints_reset: Array | None = None
+    stopped: bool = False
     recording: RecordingStatus | None = None
 
     @property
@@ -265,6 +268,8 @@ def encode(r: TickRecord) -> dict[str, Any]:
         "arb": None if r.step is None else {k: _sig(getattr(r.step, k)) for k in STEP_ARRAYS},
         "timing": {k: round(v, 4) for k, v in r.timing.items()},
     }
+    if r.stopped:
+        out["stopped"] = True
     if r.X_reset is not None:
         out["X_reset"] = pack(r.X_reset)
         if r.joints_reset is not None:
@@ -359,6 +364,7 @@ def decode(d: dict[str, Any], dims: tuple[str, ...]) -> TickRecord:
             timing={k: float(v) for k, v in (d.get("timing") or {}).items() if v is not None},
             X_reset=unpack(d.get("X_reset")),
             joints_reset=unpack_joints(d.get("joints_reset")),
+            stopped=bool(d.get("stopped", False)),
         )
     except (KeyError, TypeError, ValueError, AssertionError) as exc:
         raise InputError(f"malformed tick record ({type(exc).__name__}: {exc})") from None

@@ -265,5 +265,16 @@ class HistoryFile:
         return {"path": str(self.path.resolve()), "sha256": self.sha256}
 
     def save(self, history: OperatorHistory) -> None:
-        write_json_atomic(self.path, history.to_dict())
-        self.sha256 = hashlib.sha256(self.path.read_bytes()).hexdigest()
+        """Replace the file with `history` (atomically).
+
+        Raises:
+            InputError: it cannot be written (the command checked it could at start-up,
+                `outpaths`; this is a disk that filled up or a folder changed since).
+        """
+        try:
+            write_json_atomic(self.path, history.to_dict())
+            self.sha256 = hashlib.sha256(self.path.read_bytes()).hexdigest()
+        except OSError as exc:
+            raise InputError(
+                f"--history {self.path}: cannot write the operator history ({exc.strerror or exc})"
+            ) from None

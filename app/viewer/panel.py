@@ -179,12 +179,13 @@ class StatusView:
 
     Attributes:
         word: `tracking` (the operator's hand drives the robot), `assist` (no hand; the
-            robot goes on to its goal), `lost` (no usable hand: the robot halts), `ended`
-            (the video or recording has no more frames), `finished` (the task has its
-            outcome; the detail says which).
+            robot goes on to its goal), `lost` (no usable hand: the robot halts), `stopped`
+            (the operator's stop is latched: the robot halts until Resume), `ended` (the
+            video or recording has no more frames), `finished` (the task has its outcome;
+            the detail says which).
         detail: the reason or the outcome ("no hand", "success (in_bin)"), or "".
         colour: of the dot and the word: green tracking and success, amber assist, red
-            lost and failure, grey ended.
+            lost, stopped and failure, grey ended.
     """
 
     word: str
@@ -201,9 +202,31 @@ def status_view(record: TickRecord) -> StatusView:
         return StatusView("tracking", "", GREEN)
     if record.status is Status.ASSIST:
         return StatusView("assist", record.reason, AMBER)
+    if record.stopped:
+        return StatusView("stopped", RESUME_HINT, RED)
     if record.reason in ENDED_REASONS:
         return StatusView("ended", record.reason, GREY)
     return StatusView("lost", record.reason, RED)
+
+
+#: The keys of the page's Stop and Resume (viser commands: also in its palette, Ctrl+K).
+STOP_KEY, RESUME_KEY = "Escape", "Shift+R"
+#: What the status line says while the operator's stop is latched.
+RESUME_HINT = f"the robot halts until Resume ({RESUME_KEY})"
+
+
+def stop_html(stopped: bool) -> str:
+    """The stop indicator under the Stop and Resume buttons: a red banner while the
+    operator's stop is latched, else a line naming the keys (`data-stopped` 1 or 0)."""
+    if stopped:
+        return (
+            '<div class="dst-stop" data-stopped="1">ROBOT STOPPED &mdash; press Resume '
+            f"({RESUME_KEY}) to drive it again</div>"
+        )
+    return (
+        f'<div class="dst-stop" data-stopped="0">Stop ({STOP_KEY}) halts the robot '
+        f"as a lost hand does, until Resume ({RESUME_KEY})</div>"
+    )
 
 
 def _clock(seconds: float) -> str:
@@ -257,6 +280,11 @@ def status_html(
 ) -> str:
     """Source, mode, tracking state and reason, timing, task phase and outcome, counters.
 
+    The element also carries the tick's state as `data-*` attributes (for tests and an
+    operator's tooling): status, reason, mode, phase, outcome, tick, rate, `data-stopped`
+    (1 while the operator's stop is latched), `data-cmd-mps` (the commanded palm speed
+    |U_cmd[:3]| [m/s]) and `data-palm-m` (the achieved palm position x,y,z [m]).
+
     Args:
         record: the tick shown.
         viewer: the view's own counters (tabs, skipped records).
@@ -304,6 +332,9 @@ def status_html(
         reason=detail,
         items=cells,
         recording=recording_html(record.recording),
+        stopped="1" if record.stopped else "0",
+        cmd_mps=f"{float(np.linalg.norm(record.U_cmd[:3])):.4f}",
+        palm=",".join(f"{v:.4f}" for v in record.X_current.position),
     )
 
 

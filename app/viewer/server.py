@@ -17,6 +17,13 @@ Rates (configurable, `ViewerConfig`):
 Several tabs see the same session: every element is added to the server (shared) scene and
 GUI, so all clients get the same state, and a new tab is brought up to date by viser.
 
+The operator's stop: a red "Stop robot" button at the top of the controls (and the Escape
+key) posts `Controls.stop_robot`; the loop latches it and halts the robot as for a lost hand
+until "Resume" (or Shift+R) posts `Controls.resume_robot`. Resume is enabled only while the
+records say the stop is latched; a banner under the buttons and the status line say
+"stopped". The keys are viser commands (also listed in its command palette, Ctrl+K); like
+every viser hotkey they do not fire while the cursor is in a text or number box.
+
 Layout (fits a 1366 x 768 window without scrolling to reach a control): the controls and the
 live parameters in a panel docked on the left (a "Hand -> robot" tab beside them says what
 each hand motion does); on the right the status line (with the source), the tally of trials,
@@ -52,6 +59,8 @@ from dsteleop.app.viewer.panel import (
     PLOT_AXES,
     PLOT_CAPTION,
     PLOT_LEGEND,
+    RESUME_KEY,
+    STOP_KEY,
     AlphaHistory,
     TrialTally,
     camera_image,
@@ -60,6 +69,7 @@ from dsteleop.app.viewer.panel import (
     mapping_html,
     plot_series,
     status_html,
+    stop_html,
     style_html,
     tally_html,
 )
@@ -377,9 +387,11 @@ class Viewer:
 
     def _add_controls(self, utensils: Sequence[str], sliders: Sequence[Slider]) -> None:
         gui = self.server.gui
+        self._add_stop()
         names = mode_names()
         mode = gui.add_dropdown("Mode", names, initial_value=names[0])
         self._mode: Any = mode
+        self._mode_followed = names[0]  # the loop's mode the dropdown last followed
 
         @mode.on_update
         def _(event: Any) -> None:
@@ -413,6 +425,51 @@ class Viewer:
             for s in sliders:
                 self._add_slider(s)
             self._refused_note = gui.add_html('<div class="dst-refused" data-refused=""></div>')
+
+    def _add_stop(self) -> None:
+        """The Stop and Resume buttons, their keys and the stop banner (module docstring)."""
+        import viser
+
+        gui = self.server.gui
+        stop = gui.add_button(
+            "Stop robot", color="red", icon=viser.Icon.HAND_STOP, hint=f"halt it ({STOP_KEY})"
+        )
+        resume = gui.add_button(
+            "Resume", color="green", icon=viser.Icon.PLAYER_PLAY, disabled=True, hint=RESUME_KEY
+        )
+        self._resume: Any = resume
+        self._stop_note = gui.add_html(stop_html(False))
+        self._shown_stopped = False
+        stop_key = gui.add_command(
+            "Stop the robot", description="halts it until Resume", hotkey="escape"
+        )
+        resume_key = gui.add_command(
+            "Resume the robot", description="after a stop", hotkey="R", modifier="shift"
+        )
+
+        @stop.on_click
+        def _(event: Any) -> None:
+            self._controls.stop_robot()
+
+        @stop_key.on_trigger
+        def _(event: Any) -> None:
+            self._controls.stop_robot()
+
+        @resume.on_click
+        def _(event: Any) -> None:
+            self._controls.resume_robot()
+
+        @resume_key.on_trigger
+        def _(event: Any) -> None:
+            self._controls.resume_robot()
+
+    def _show_stopped(self, stopped: bool) -> None:
+        """The buttons and the banner as the loop's records say (only when it changed)."""
+        if stopped == self._shown_stopped:
+            return
+        self._shown_stopped = stopped
+        self._resume.disabled = not stopped
+        self._stop_note.content = stop_html(stopped)
 
     def _add_slider(self, s: Slider) -> None:
         handle = self.server.gui.add_slider(
@@ -556,13 +613,24 @@ class Viewer:
             if self.tally.observe(snap) is not None:
                 self._tally.content = tally_html(self.tally)
             self._gauges.content = gauges_html(snap, self._last_step)
+            self._show_stopped(snap.stopped)
             now = time.monotonic()
             if self._plot is not None and now - self._t_plot >= 1.0 / self.config.plot_hz:
                 self._t_plot = now
                 self._plot.data = self._history.data()
-            if snap.mode.value in mode_names() and self._mode.value != snap.mode.value:
-                self._mode.value = snap.mode.value  # follow the loop (posted by no one)
+            self._follow_mode(snap.mode.value)
         self.stats.panel_updates += 1
+
+    def _follow_mode(self, mode: str) -> None:
+        """The dropdown follows the loop's changes of mode (posted by no one). Only changes:
+        a mode a person just chose differs from the loop's until the loop takes it, and
+        setting the dropdown back meanwhile would make the person's own callback (which
+        reads the dropdown's value in viser's thread pool) post the old mode instead."""
+        if mode == self._mode_followed or mode not in mode_names():
+            return
+        self._mode_followed = mode
+        if self._mode.value != mode:
+            self._mode.value = mode
 
     def _update_camera(self, snap: TickRecord) -> None:
         seq = None if snap.hand is None else snap.hand.seq
