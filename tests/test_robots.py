@@ -341,10 +341,12 @@ def test_the_page_draws_the_panda_and_its_one_gauge_of_fingers() -> None:
 @pytest.mark.parametrize("robot", shipped_robots())
 def test_the_palm_reaches_a_still_pose_within_2_mm_on_every_shipped_robot(robot: str) -> None:
     """The goal-seeking policy from the achieved palm (as the loop drives it) brings the palm
-    within 2 mm of a still goal in free air: the arm holds its own weight (gravity
-    compensation, docs/robot.md). Before, each tick's command left the arm sagging ~1 mrad
-    and the policy, stepping from the achieved palm, stalled 3-8 mm short (iiwa 4.9 mm,
-    Panda 7.7 mm at the worst of these goals; `scripts/steady_state.py`)."""
+    within 2 mm of a still goal in free air when the arm holds its own weight (gravity
+    compensation, docs/robot.md; an option, off by default for now). Without it, each
+    tick's command left the arm sagging ~1 mrad and the policy, stepping from the achieved
+    palm, stalled 3-8 mm short (iiwa 4.9 mm, Panda 7.7 mm at the worst of these goals;
+    `scripts/steady_state.py`)."""
+    from dsteleop.robot.arm import RobotConfig
     from dsteleop.robot.env import R_PALM_DOWN, EnvConfig, KitchenEnv
     from dsteleop.robot.scripted import goal_seeking_step, noise_free
     from dsteleop.robot.world import BIN_CENTER_M, pocket_center_m
@@ -355,7 +357,8 @@ def test_the_palm_reaches_a_still_pose_within_2_mm_on_every_shipped_robot(robot:
         np.array([BIN_CENTER_M[0], BIN_CENTER_M[1], 0.45]),  # the place pose
     )
     for p_goal in goals:
-        with KitchenEnv(noise_free(EnvConfig(description=desc))) as env:
+        config = EnvConfig(description=desc, robot=RobotConfig(gravity_compensation=True))
+        with KitchenEnv(noise_free(config)) as env:
             X = env.reset("spoon").palm
             goal = HandState(p_goal, R_PALM_DOWN.copy(), np.ones(len(desc.fingers)))
             errors = []
