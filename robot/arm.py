@@ -9,7 +9,10 @@ One control tick (`Robot.set_target` then `Robot.step`, `control_dt_s`: 1/30 s b
                           squares, joint limits, null-space pull to the rest posture,
                           warm-started from the last solution)  ->  position motors
                           finger joints: q = q_closed + g * (q_open - q_closed), per finger
-                          (each joint's open and closed position from the description)
+                          (each joint's open and closed position from the description),
+                          within the joint's URDF limits; each URDF `<mimic>` joint of a
+                          finger joint (PyBullet ignores the tag): q = m q_master + o,
+                          within its own limits
     step():               `substeps` physics steps of control_dt_s / substeps, then contacts
     state():              palm pose by forward kinematics of the simulated joints
 
@@ -54,6 +57,14 @@ commands are closed (openness <= `helper_openness`) touch the same graspable bod
 removed as soon as the thumb or all the other fingers are commanded open; its strength is
 `helper_max_force_n`. With the defaults the scripted run holds every utensil by friction
 alone.
+
+Steady state: before each physics step every robot link is held up by its own weight
+(`RobotConfig.gravity_compensation`: m g upwards at its centre of mass), as a real arm's
+controller feeds its gravity torques forward. Without it the position motors (10 solver
+iterations) leave the arm 0.1-1.3 mrad short of its target under gravity, and a goal-seeking
+policy that steps from the achieved palm (X_next = X + K_r e dt) stops where its step equals
+that sag: 3-8 mm short at K_r = 2 /s (docs/robot.md, `scripts/steady_state.py`); with it,
+0.3 mm. An integral term would also remove the offset, but winds up against contact.
 
 Quaternions cross this boundary as rotation matrices; PyBullet's xyzw stays inside.
 """
@@ -153,6 +164,11 @@ class RobotConfig:
         pad_damping_n_s_per_m: ... and their contact damping [N s/m] (about critical for a
             20-30 g phalanx on that spring: 2 sqrt(k m) = 28-35 N s/m).
         control_dt_s: simulated time of one control tick [s] (the loop's period).
+        gravity_compensation: hold every robot link up against gravity (its weight at its
+            centre of mass, each physics step), as a real arm's controller compensates its
+            own weight (module docstring: steady state). Off by default for now: it moves
+            the demo's measured rates by a seed or two (docs/robots.md), which are to be
+            re-measured over 20 seeds per mode and robot before it becomes the default.
     """
 
     substeps: int = 3
@@ -173,6 +189,7 @@ class RobotConfig:
     pad_stiffness_n_per_m: float = 1.0e4
     pad_damping_n_s_per_m: float = 30.0
     control_dt_s: float = CONTROL_DT_S
+    gravity_compensation: bool = False
 
     @classmethod
     def for_period(cls, control_dt_s: float, **kw: Any) -> RobotConfig:
@@ -332,14 +349,39 @@ class Robot:
         self._finger_slices = [
             np.flatnonzero(self._joint_finger == k) for k in range(len(desc.fingers))
         ]
+        # Mimic joints (`description.MimicJoint`): driven at m q_master + o from their master
+        # finger joint's command, within their own limits; their links take its group.
+        finger_at = {j.name: k for k, j in enumerate(fjoints)}
+        mimics = desc.mimic_joints
+        self._mimic_idx = [loaded.joints[m.name].index for m in mimics]
+        self._mimic_master = np.array([finger_at[m.master] for m in mimics], dtype=np.intp)
+        self._mimic_m = np.array([m.multiplier for m in mimics], dtype=np.float64)
+        self._mimic_o = np.array([m.offset for m in mimics], dtype=np.float64)
+        self._mimic_lo = np.array([-np.inf if m.lower is None else m.lower for m in mimics])
+        self._mimic_hi = np.array([np.inf if m.upper is None else m.upper for m in mimics])
+        limits = {n: (lo, hi) for n, lo, hi in desc.finger_limits}
+        self._finger_lo = np.array([limits.get(j.name, (-np.inf, np.inf))[0] for j in fjoints])
+        self._finger_hi = np.array([limits.get(j.name, (np.inf, np.inf))[1] for j in fjoints])
         #: contact group of each finger link (by link name), and the fingers of each group
-        self.link_group: dict[str, str] = {
-            self._link_names[loaded.joints[j.name].index]: j.group for j in fjoints
-        }
+        link_finger: dict[str, tuple[str, str]] = {}  # link -> (group, finger)
+        for k, j in enumerate(fjoints):
+            f = desc.fingers[int(self._joint_finger[k])].name
+            link_finger[self._link_names[loaded.joints[j.name].index]] = (j.group, f)
+        for m, k in zip(mimics, self._mimic_master, strict=True):
+            f = desc.fingers[int(self._joint_finger[k])].name
+            link_finger[self._link_names[loaded.joints[m.name].index]] = (fjoints[k].group, f)
+        for link, group in desc.link_groups:  # a pad's own group; its finger: up the tree
+            li, owner = loaded.links[link], ""
+            while li >= 0 and not owner:
+                owner = link_finger.get(self._link_names[li], ("", ""))[1]
+                li = int(pb.getJointInfo(loaded.body, li, physicsClientId=client)[16])
+            link_finger[link] = (group, owner)
+        self.link_group: dict[str, str] = {ln: g for ln, (g, _) in link_finger.items()}
         self._group_fingers: dict[str, set[str]] = {}
-        for f in desc.fingers:
-            for j in f.joints:
-                self._group_fingers.setdefault(j.group, set()).add(f.name)
+        for g, f in link_finger.values():
+            self._group_fingers.setdefault(g, set())
+            if f:
+                self._group_fingers[g].add(f)
         movable = sorted(loaded.joints.values(), key=lambda j: j.index)
         self._chain = chain
         self._q_rest = np.array(desc.rest_posture_rad)
@@ -351,6 +393,8 @@ class Robot:
         self._arm_gains = [desc.arm_position_gain] * len(self._arm)
         self._finger_gains = [config.finger_position_gain] * len(self._finger_idx)
         self._finger_forces = [f.force for f in desc.fingers for _ in f.joints]
+        self._mimic_forces = [self._finger_forces[int(k)] for k in self._mimic_master]
+        self._mimic_gains = [config.finger_position_gain] * len(self._mimic_idx)
         self._all_idx = [j.index for j in movable]
         self._q_open = np.array([j.open for j in fjoints])
         self._q_closed = np.array([j.closed for j in fjoints])
@@ -372,6 +416,17 @@ class Robot:
         self._unreachable = False
         self._ik_err_m = 0.0
         self._ik_err_rad = 0.0
+        #: gravity compensation: each moving link and the force that holds it up [N]
+        self._gc_links: list[int] = []
+        self._gc_forces: list[tuple[float, float, float]] = []
+        if config.gravity_compensation:
+            params = pb.getPhysicsEngineParameters(physicsClientId=client)
+            gx, gy, gz = (float(params[f"gravityAcceleration{a}"]) for a in "XYZ")
+            for li in sorted(set(loaded.links.values()) - {-1}):
+                mass = float(pb.getDynamicsInfo(loaded.body, li, physicsClientId=client)[0])
+                if mass > 0.0:
+                    self._gc_links.append(li)
+                    self._gc_forces.append((-mass * gx, -mass * gy, -mass * gz))
         pb.setPhysicsEngineParameter(
             fixedTimeStep=config.physics_dt_s,
             numSubSteps=0,
@@ -389,7 +444,8 @@ class Robot:
                 jointDamping=0.0 if info.name in desc.arm_joints else 0.01,
                 physicsClientId=client,
             )
-        for li in self._finger_idx:  # a joint's index is its child link's
+        pads = sorted({loaded.links[ln] for ln in self.link_group})
+        for li in pads:  # every finger link: the finger joints', the mimics', link_groups'
             pb.changeDynamics(
                 self._body,
                 li,
@@ -445,6 +501,9 @@ class Robot:
         q_f = self._finger_q(g)
         for k, idx in enumerate(self._finger_idx):
             pb.resetJointState(self._body, idx, float(q_f[k]), physicsClientId=self._c)
+        for k, idx in enumerate(self._mimic_idx):
+            q_m = float(self._mimic_q(q_f)[k])
+            pb.resetJointState(self._body, idx, q_m, physicsClientId=self._c)
         self._t_s = 0.0
         self._state_cache = None
         self.release()
@@ -493,6 +552,12 @@ class Robot:
         # driving its pad into it; NaN entries (free fingers) leave the command as it is.
         limit = self._stall_q + self._sense * self._squeeze
         q_f = np.where(self._sense * (q_f - limit) > 0.0, limit, q_f)
+        self._command_fingers(q_f)
+
+    def _command_fingers(self, q_f: Array) -> None:
+        """Position targets for the finger joints (within their URDF limits) and, from
+        them, for their mimic joints."""
+        q_f = np.clip(q_f, self._finger_lo, self._finger_hi)
         pb.setJointMotorControlArray(
             self._body,
             self._finger_idx,
@@ -502,6 +567,22 @@ class Robot:
             positionGains=self._finger_gains,
             physicsClientId=self._c,
         )
+        if self._mimic_idx:
+            pb.setJointMotorControlArray(
+                self._body,
+                self._mimic_idx,
+                pb.POSITION_CONTROL,
+                targetPositions=self._mimic_q(q_f).tolist(),
+                forces=self._mimic_forces,
+                positionGains=self._mimic_gains,
+                physicsClientId=self._c,
+            )
+
+    def _mimic_q(self, q_f: Array) -> Array:
+        """Each mimic joint's position for finger joint positions q_f: m q_master + o,
+        within its limits."""
+        q = self._mimic_m * q_f[self._mimic_master] + self._mimic_o
+        return np.asarray(np.clip(q, self._mimic_lo, self._mimic_hi))
 
     def _finger_q(self, g: Array) -> Array:
         per_joint = g[self._joint_finger]
@@ -544,22 +625,31 @@ class Robot:
             targetPositions=self._q_arm_cmd.tolist(), forces=self._arm_forces,
             positionGains=self._arm_gains, physicsClientId=self._c,
         )  # fmt: skip
-        pb.setJointMotorControlArray(
-            self._body, self._finger_idx, pb.POSITION_CONTROL,
-            targetPositions=q_f.tolist(), forces=self._finger_forces,
-            positionGains=self._finger_gains, physicsClientId=self._c,
-        )  # fmt: skip
+        self._command_fingers(q_f)
 
     def step(self) -> None:
         """Advance the physics by one control tick (`control_dt_s`) under the current targets."""
         self._state_cache = None
         for _ in range(self.config.substeps):
+            self._compensate_gravity()
             pb.stepSimulation(physicsClientId=self._c)
         self._t_s += self.config.control_dt_s
         self._contacts = self._read_contacts()
         self._update_stall()
         if self.config.grasp_helper:
             self._update_helper()
+
+    def _compensate_gravity(self) -> None:
+        """Hold each of the robot's links up against gravity for the next physics step (its
+        weight, upwards, at its centre of mass; PyBullet clears external forces after each
+        step): module docstring, steady state. A held body's weight is not compensated."""
+        if not self._gc_links:
+            return
+        states = pb.getLinkStates(
+            self._body, self._gc_links, computeForwardKinematics=True, physicsClientId=self._c
+        )
+        for li, f, st in zip(self._gc_links, self._gc_forces, states, strict=True):
+            pb.applyExternalForce(self._body, li, f, st[0], pb.WORLD_FRAME, physicsClientId=self._c)
 
     def touching_groups(self, body: int, others: str | None = None) -> set[str]:
         """The finger contact groups whose links touch `body` (as of the last step); with

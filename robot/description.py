@@ -10,9 +10,12 @@ four-finger hand) and `panda.toml` (the Franka Panda of `pybullet_data` with its
 gripper: one finger, `gripper`, whose openness drives both jaws).
 
 `load_description(NAME_OR_FILE)` reads and validates one: a shipped name, or a path to a
-`.toml` file. Everything wrong with it (a malformed file, a missing field, a joint or link
-the URDF does not have) is one `InputError` naming the file and the field. Nothing is read
-from the network: URDFs come from installed packages or the repository.
+`.toml` file. Everything wrong with it (a malformed file, a missing field, a number outside
+its range in `RANGES`, a joint or link the URDF does not have, a finger position outside its
+joint's URDF limits, a mesh found nowhere) is one `InputError` naming the file and the
+field. The URDFs are read by the one URDF reader (`robot.urdf`: top-level joints only,
+`<mimic>` couplings, meshes along `package_path` and `ROS_PACKAGE_PATH`). Nothing is read
+from the network: URDFs come from installed packages, the repository or the user's files.
 
 The palm frame (docs/robot.md): origin where the fingers start (the palm's inner face),
 +z the approach direction (the way open fingers point), the fingers close along y. The task
@@ -24,13 +27,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import sys
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from dsteleop.errors import InputError
+from dsteleop.robot.urdf import UrdfModel, no_joint, package_search_path, resolve_meshes
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -50,6 +54,61 @@ PYBULLET_DATA = "pybullet_data:"
 DEFAULT_GRASP_DEPTH_M = -0.012
 #: The finger links' torsional (spinning) friction by default (`grip.spinning_friction`).
 DEFAULT_SPINNING_FRICTION = 0.002
+TAU = 2.0 * math.pi
+
+
+@dataclass(frozen=True)
+class Range:
+    """The values a description's number may take: lo..hi, each end open or closed."""
+
+    lo: float
+    hi: float
+    lo_open: bool = False
+    hi_open: bool = False
+
+    def __contains__(self, v: float) -> bool:
+        above = v > self.lo if self.lo_open else v >= self.lo
+        below = v < self.hi if self.hi_open else v <= self.hi
+        return above and below
+
+    def __str__(self) -> str:
+        def num(v: float) -> str:
+            return {TAU: "2pi", -TAU: "-2pi"}.get(v, f"{v:g}")
+
+        lo, hi = num(self.lo), num(self.hi)
+        return f"{'(' if self.lo_open else '['}{lo}, {hi}{')' if self.hi_open else ']'}"
+
+
+#: Every number a description holds and the range it must lie in (docs/robots.md gives the
+#: reasons); a vector's every component. Keys are field paths without list indices
+#: (`fingers.joints.open` for `fingers[0].joints[1].open`). Finger joints' open and closed
+#: positions and the rest posture must also lie within their joints' URDF limits.
+RANGES: dict[str, Range] = {
+    "arm.rest_posture_rad": Range(-TAU, TAU),
+    # PyBullet's position motor closes this share of the joint error per physics step:
+    # above 1 it overshoots and the arm diverges (at 2.0 the palm ended 0.42 m below the table)
+    "arm.position_gain": Range(0.0, 1.0, lo_open=True),
+    "mount.xyz_m": Range(-1.0, 1.0),
+    "mount.rpy_rad": Range(-TAU, TAU),
+    "palm.xyz_m": Range(-1.0, 1.0),
+    "palm.rpy_rad": Range(-TAU, TAU),
+    "fingers.force": Range(0.0, 5000.0, lo_open=True),
+    "fingers.squeeze_share": Range(0.0, 1.0, lo_open=True),
+    "fingers.joints.open": Range(-TAU, TAU),
+    "fingers.joints.closed": Range(-TAU, TAU),
+    "grip.tcp_xyz_m": Range(-0.5, 0.5),
+    "grip.depth_m": Range(-0.1, 0.08),  # from 10 cm above the grip to its bottom (8 cm)
+    "grip.spinning_friction": Range(0.0, 1.0),
+    "home.position_m": Range(-3.0, 3.0),
+    "home.rotvec_rad": Range(-TAU, TAU),
+    "limits.workspace_min_m": Range(-3.0, 3.0),
+    "limits.workspace_max_m": Range(-3.0, 3.0),
+    "limits.shoulder_m": Range(-3.0, 3.0),
+    "limits.reach_m": Range(0.0, 3.0, lo_open=True),
+    "limits.max_speed_m_s": Range(0.0, 2.0, lo_open=True),
+    "limits.max_rate_rad_s": Range(0.0, TAU, lo_open=True),
+    "limits.max_finger_rate_per_s": Range(0.0, 30.0, lo_open=True),
+}
 
 
 @dataclass(frozen=True)
@@ -89,6 +148,28 @@ class Finger:
     force: float
     human: tuple[str, ...]
     squeeze_share: float | None = None
+
+
+@dataclass(frozen=True)
+class MimicJoint:
+    """A URDF joint coupled to a finger joint by `<mimic>` (`robot.urdf`): the robot drives
+    it at multiplier * q_master + offset, within its own limits (PyBullet ignores the tag).
+
+    Attributes:
+        name: the mimic joint's URDF name.
+        master: the finger joint it follows (through a chain of mimics, composed).
+        multiplier: m of q = m q_master + o.
+        offset: o [rad or m].
+        lower: its URDF lower limit [rad or m] (None: unlimited).
+        upper: its URDF upper limit (None: unlimited).
+    """
+
+    name: str
+    master: str
+    multiplier: float
+    offset: float
+    lower: float | None
+    upper: float | None
 
 
 @dataclass(frozen=True)
@@ -150,6 +231,15 @@ class RobotDescription:
         text: the description file's text (recorded with a session).
         prismatic_joints: the finger joints that are prismatic in the URDF (positions in m;
             every other joint is revolute, in rad), filled in from the URDF at loading.
+        package_path: folders (relative to the description file) that `package://` and
+            relative mesh paths are looked up in, before `ROS_PACKAGE_PATH` (`robot.urdf`).
+        link_groups: (link, contact group) pairs: links (a mimic joint's, a linkage's pad)
+            whose contact group is not their finger joint's (`grip.link_groups`).
+        mimic_joints: the URDF's joints coupled to a finger joint by `<mimic>`, filled in
+            from the URDF at loading; each takes its finger joint's contact group unless
+            `link_groups` names its link.
+        finger_limits: (joint, lower, upper) of every finger joint with URDF limits, filled
+            in at loading.
     """
 
     name: str
@@ -179,6 +269,10 @@ class RobotDescription:
     spinning_friction: float = DEFAULT_SPINNING_FRICTION
     text: str = ""
     prismatic_joints: frozenset[str] = frozenset()
+    package_path: tuple[str, ...] = ()
+    link_groups: tuple[tuple[str, str], ...] = ()
+    mimic_joints: tuple[MimicJoint, ...] = ()
+    finger_limits: tuple[tuple[str, float, float], ...] = ()
 
     @property
     def finger_names(self) -> tuple[str, ...]:
@@ -207,6 +301,11 @@ class RobotDescription:
             return Path(pybullet_data.getDataPath()) / ref[len(PYBULLET_DATA) :]
         p = Path(ref)
         return p if p.is_absolute() else (self.path.parent / p).resolve()
+
+    def search_path(self) -> tuple[Path, ...]:
+        """Where meshes are looked up (`robot.urdf.package_search_path`): `package_path`,
+        then `ROS_PACKAGE_PATH`, then `AMENT_PREFIX_PATH`'s share folders."""
+        return package_search_path(self.resolve(d) for d in self.package_path)
 
     def to_dict(self) -> dict[str, Any]:
         """What a session records: the name and the file (and its text, so a replay
@@ -260,9 +359,7 @@ def _from_text(text: str, path: Path) -> RobotDescription:
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"robot description {path}: not valid TOML ({exc})") from None
     desc = dataclasses.replace(_parse(data, path), text=text)
-    types = check_against_urdf(desc)
-    prismatic = frozenset(j.name for j in desc.finger_joints if types[j.name] == "prismatic")
-    return dataclasses.replace(desc, prismatic_joints=prismatic)
+    return check_against_urdf(desc)
 
 
 def description_from_record(meta: dict[str, Any] | None) -> RobotDescription:
@@ -308,23 +405,22 @@ class _Fields:
             raise self.fail(key, f"must be a non-empty string, got {v!r}")
         return v
 
-    def num(self, key: str, positive: bool = False) -> float:
+    def _in_range(self, key: str, v: float, shown: Any) -> None:
+        r = RANGES.get(re.sub(r"\[\d+\]", "", self._name(key)))
+        if r is not None and v not in r:
+            raise self.fail(key, f"must be in {r}, got {shown!r}")
+
+    def num(self, key: str) -> float:
         v = self.get(key)
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
             raise self.fail(key, f"must be a finite number, got {v!r}")
-        if positive and v <= 0:
-            raise self.fail(key, f"must be > 0, got {v!r}")
+        self._in_range(key, float(v), v)
         return float(v)
 
     def vec3(self, key: str, default: tuple[float, float, float] | None = None) -> Any:
         if default is not None and key not in self.d:
             return default
-        v = self.get(key)
-        ok = isinstance(v, list) and len(v) == 3
-        ok = ok and all(not isinstance(x, bool) and isinstance(x, (int, float)) for x in v)
-        if not ok or not all(math.isfinite(x) for x in v):
-            raise self.fail(key, f"must be 3 finite numbers, got {v!r}")
-        return (float(v[0]), float(v[1]), float(v[2]))
+        return self.nums(key, 3)
 
     def strs(self, key: str) -> tuple[str, ...]:
         v = self.get(key)
@@ -338,7 +434,20 @@ class _Fields:
         ok = ok and all(not isinstance(x, bool) and isinstance(x, (int, float)) for x in v)
         if not ok or not all(math.isfinite(x) for x in v):
             raise self.fail(key, f"must be {n} finite numbers, got {v!r}")
+        for x in v:
+            self._in_range(key, float(x), v)
         return tuple(float(x) for x in v)
+
+    def text_map(self, key: str) -> tuple[tuple[str, str], ...]:
+        """A table of names to names (`grip.link_groups`), as sorted pairs; () if absent."""
+        if key not in self.d:
+            return ()
+        v = self.d[key]
+        if not isinstance(v, dict) or not all(
+            isinstance(k, str) and k and isinstance(x, str) and x for k, x in v.items()
+        ):
+            raise self.fail(key, f"must be a table of names to names, got {v!r}")
+        return tuple(sorted(v.items()))
 
     def table(self, key: str) -> _Fields:
         return _Fields(self.get(key), self.path, self._name(key))
@@ -348,6 +457,10 @@ class _Fields:
         if not isinstance(v, list) or not v:
             raise self.fail(key, "must be a non-empty list of tables")
         return [_Fields(x, self.path, f"{self._name(key)}[{i}]") for i, x in enumerate(v)]
+
+
+def _package_path(f: _Fields) -> tuple[str, ...]:
+    return f.strs("package_path") if f.has("package_path") else ()
 
 
 def _parse(data: Any, path: Path) -> RobotDescription:
@@ -380,10 +493,8 @@ def _parse(data: Any, path: Path) -> RobotDescription:
         bad = [h for h in human if h not in HUMAN_FINGERS]
         if bad:
             raise t.fail("human", f"names no human finger: {bad} (of {', '.join(HUMAN_FINGERS)})")
-        squeeze = t.num("squeeze_share", positive=True) if t.has("squeeze_share") else None
-        if squeeze is not None and squeeze > 1:
-            raise t.fail("squeeze_share", f"must be at most 1, got {squeeze!r}")
-        force = t.num("force", positive=True)
+        squeeze = t.num("squeeze_share") if t.has("squeeze_share") else None
+        force = t.num("force")
         fingers.append(Finger(name, tuple(joints), force, human, squeeze))
     names = [x.name for x in fingers]
     if len(set(names)) != len(names):
@@ -394,9 +505,8 @@ def _parse(data: Any, path: Path) -> RobotDescription:
     spinning = DEFAULT_SPINNING_FRICTION
     if grip.has("spinning_friction"):
         spinning = grip.num("spinning_friction")
-        if spinning < 0:
-            raise grip.fail("spinning_friction", f"must be >= 0, got {spinning!r}")
-    groups = {j.group for x in fingers for j in x.joints}
+    link_groups = grip.text_map("link_groups")
+    groups = {j.group for x in fingers for j in x.joints} | {g for _, g in link_groups}
     if opposing not in groups or len(groups) < 2:
         raise grip.fail(
             "opposing", f"must be one of two or more finger contact groups {sorted(groups)}"
@@ -414,7 +524,7 @@ def _parse(data: Any, path: Path) -> RobotDescription:
         mount=mount,
         arm_joints=arm_joints,
         rest_posture_rad=arm.nums("rest_posture_rad", len(arm_joints)),
-        arm_position_gain=arm.num("position_gain", positive=True),
+        arm_position_gain=arm.num("position_gain"),
         palm_link=palm.text("link"),
         palm_xyz_m=palm.vec3("xyz_m", (0.0, 0.0, 0.0)),
         palm_rpy_rad=palm.vec3("rpy_rad", (0.0, 0.0, 0.0)),
@@ -425,53 +535,79 @@ def _parse(data: Any, path: Path) -> RobotDescription:
         workspace_min_m=lo,
         workspace_max_m=hi,
         shoulder_m=lim.vec3("shoulder_m"),
-        reach_m=lim.num("reach_m", positive=True),
-        max_speed_m_s=lim.num("max_speed_m_s", positive=True),
-        max_rate_rad_s=lim.num("max_rate_rad_s", positive=True),
-        max_finger_rate_per_s=lim.num("max_finger_rate_per_s", positive=True),
+        reach_m=lim.num("reach_m"),
+        max_speed_m_s=lim.num("max_speed_m_s"),
+        max_rate_rad_s=lim.num("max_rate_rad_s"),
+        max_finger_rate_per_s=lim.num("max_finger_rate_per_s"),
         grasp_xyz_m=grip.vec3("tcp_xyz_m", (0.0, 0.0, 0.0)),
         grasp_depth_m=grasp_depth_m,
         spinning_friction=spinning,
+        package_path=_package_path(f),
+        link_groups=link_groups,
     )
     if not all(a <= b <= c for a, b, c in zip(lo, desc.home_position_m, hi, strict=True)):
         raise home.fail("position_m", "must lie inside the workspace box")
     return desc
 
 
-def _urdf_root(desc: RobotDescription, ref: str, field_name: str) -> ET.Element:
-    p = desc.resolve(ref)
-    if not p.is_file():
-        raise InputError(f"robot description {desc.path}: {field_name} {ref!r}: no file {p}")
-    try:
-        return ET.parse(p).getroot()
-    except ET.ParseError as exc:
-        raise InputError(f"robot description {desc.path}: {field_name} {p}: {exc}") from None
-
-
-def check_against_urdf(desc: RobotDescription) -> dict[str, str]:
-    """Every joint and link the description names exists in its URDF(s), with the right type.
-
-    Returns:
-        The URDF type ("revolute", "prismatic") of each joint the description names.
+def urdf_models(desc: RobotDescription, meshes: bool = True) -> list[UrdfModel]:
+    """The description's URDFs (the arm's, then a mounted hand's), parsed by the one reader
+    (`robot.urdf`), their meshes resolved to absolute files against `desc.search_path()`.
 
     Raises:
-        InputError: naming the first that does not.
+        InputError: a URDF is missing or malformed, or a mesh is found nowhere (one line).
     """
-    roots = [_urdf_root(desc, desc.urdf, "arm.urdf")]
+    refs = [("arm.urdf", desc.urdf)]
     if desc.mount is not None:
-        roots.append(_urdf_root(desc, desc.mount.urdf, "mount.urdf"))
-    joints = {j.get("name"): j for r in roots for j in r.iter("joint")}
-    links = {ln.get("name") for r in roots for ln in r.iter("link")}
+        refs.append(("mount.urdf", desc.mount.urdf))
+    out = []
+    search = desc.search_path()
+    for field_name, ref in refs:
+        p = desc.resolve(ref)
+        where = f"robot description {desc.path}: {field_name} {ref!r}"
+        model = UrdfModel.read(p, where)
+        if meshes:
+            resolve_meshes(model, search, f"robot description {desc.path}: {field_name} {p}")
+        out.append(model)
+    return out
+
+
+def check_against_urdf(desc: RobotDescription) -> RobotDescription:
+    """Every joint and link the description names exists in its URDF(s) (top-level
+    elements only, `robot.urdf`), with the right type, every finger position within its
+    joint's limits, every mesh found; and what the URDF adds (prismatic finger joints,
+    mimic joints, finger limits) filled in.
+
+    Raises:
+        InputError: naming the first problem and its field.
+    """
+    models = urdf_models(desc)
+    joints = {n: j for m in models for n, j in m.joints.items()}
+    links = frozenset().union(*(m.links for m in models))
+    elsewhere = frozenset().union(*(m.named_elsewhere for m in models))
+    model = models[0]
 
     def fail(what: str) -> InputError:
         return InputError(f"robot description {desc.path}: {what}")
 
-    for n in desc.arm_joints:
+    def missing(n: str) -> str:
+        return no_joint(n, elsewhere)
+
+    for k, n in enumerate(desc.arm_joints):
         j = joints.get(n)
         if j is None:
-            raise fail(f"arm.joints: the URDF has no joint {n!r}")
-        if j.get("type") != "revolute":
-            raise fail(f"arm.joints: {n!r} is {j.get('type')}, not revolute")
+            raise fail(f"arm.joints: {missing(n)}")
+        if j.type is None:
+            raise fail(f"arm.joints: the URDF's joint {n!r} has no type attribute")
+        if j.type != "revolute":
+            raise fail(f"arm.joints: {n!r} is {j.type}, not revolute")
+        lim = j.limits
+        q = desc.rest_posture_rad[k]
+        if lim is not None and not lim[0] <= q <= lim[1]:
+            raise fail(
+                f"arm.rest_posture_rad[{k}] {q:g} is outside {n!r}'s URDF limits "
+                f"[{lim[0]:g}, {lim[1]:g}]"
+            )
     if desc.mount is not None:
         for key, name in (
             ("parent_link", desc.mount.parent_link),
@@ -481,11 +617,43 @@ def check_against_urdf(desc: RobotDescription) -> dict[str, str]:
                 raise fail(f"mount.{key}: the URDF has no link {name!r}")
     if desc.palm_link not in links:
         raise fail(f"palm.link: the URDF has no link {desc.palm_link!r}")
-    for fj in desc.finger_joints:
-        j = joints.get(fj.name)
-        if j is None:
-            raise fail(f"fingers: the URDF has no joint {fj.name!r}")
-        if j.get("type") not in ("revolute", "prismatic"):
-            raise fail(f"fingers: joint {fj.name!r} is {j.get('type')}, not revolute or prismatic")
-    named = (*desc.arm_joints, *(fj.name for fj in desc.finger_joints))
-    return {n: str(joints[n].get("type")) for n in named}
+    for link, _ in desc.link_groups:
+        if link not in links:
+            raise fail(f"grip.link_groups: the URDF has no link {link!r}")
+    finger_names = {fj.name for fj in desc.finger_joints}
+    limits: list[tuple[str, float, float]] = []
+    for fi, finger in enumerate(desc.fingers):
+        for ji, fj in enumerate(finger.joints):
+            at = f"fingers[{fi}].joints[{ji}]"
+            j = joints.get(fj.name)
+            if j is None:
+                raise fail(f"fingers: {missing(fj.name)}")
+            if j.type not in ("revolute", "prismatic"):
+                raise fail(f"fingers: joint {fj.name!r} is {j.type}, not revolute or prismatic")
+            lim = j.limits
+            if lim is None:
+                continue
+            limits.append((fj.name, lim[0], lim[1]))
+            for key, q in (("open", fj.open), ("closed", fj.closed)):
+                if not lim[0] - 1e-9 <= q <= lim[1] + 1e-9:
+                    raise fail(
+                        f"{at}.{key} {q:g} is outside {fj.name!r}'s URDF limits "
+                        f"[{lim[0]:g}, {lim[1]:g}]"
+                    )
+    mimics = []
+    for n, j in joints.items():
+        if j.mimic is None or j.type not in ("revolute", "prismatic") or n in finger_names:
+            continue  # a mimic the description lists is driven as listed
+        owner = model if n in model.joints else models[-1]
+        master, m, o = owner.mimic_root(n, frozenset(finger_names))
+        if master in finger_names:
+            mimics.append(MimicJoint(n, master, m, o, j.lower, j.upper))
+    prismatic = frozenset(
+        fj.name for fj in desc.finger_joints if joints[fj.name].type == "prismatic"
+    )
+    return dataclasses.replace(
+        desc,
+        prismatic_joints=prismatic,
+        mimic_joints=tuple(mimics),
+        finger_limits=tuple(limits),
+    )

@@ -23,7 +23,6 @@ controller: what one tick leaves, the next one removes.
 from __future__ import annotations
 
 import math
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,30 +31,9 @@ from numpy.typing import NDArray
 from dsteleop.arbitration.jit import as_input, kernel
 from dsteleop.arbitration.se3 import exp_of, log_relative_of
 from dsteleop.errors import InputError
+from dsteleop.robot.urdf import UrdfModel
 
 Array = NDArray[np.float64]
-
-
-def _rpy_to_R(r: float, p: float, y: float) -> Array:
-    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
-    return np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
-
-
-def _origin(el: ET.Element) -> Array:
-    T = np.eye(4)
-    o = el.find("origin")
-    if o is not None:
-        xyz = [float(v) for v in o.get("xyz", "0 0 0").split()]
-        rpy = [float(v) for v in o.get("rpy", "0 0 0").split()]
-        T[:3, :3] = _rpy_to_R(*rpy)
-        T[:3, 3] = xyz
-    return T
 
 
 @kernel
@@ -259,31 +237,26 @@ class ArmChain:
     ) -> ArmChain:
         """Read the chain `joint_names` (in order) then the fixed `tip_joint` (or several, in
         order from the last arm joint, composed into one tip transform) from URDF text."""
-        root = ET.fromstring(text)
-        joints = {j.get("name"): j for j in root.iter("joint")}
+        model = UrdfModel.from_text(text)
         tips = (tip_joint,) if isinstance(tip_joint, str) else tuple(tip_joint)
         fixed: list[Array] = []
-        axes: list[list[float]] = []
+        axes: list[Array] = []
         lo: list[float] = []
         hi: list[float] = []
         for n in (*joint_names, *tips):
-            j = joints.get(n)
+            j = model.joints.get(n)
             if j is None:
-                raise InputError(f"URDF has no joint {n!r}")
+                raise InputError(f"URDF: {model.missing_joint(n)}")
             if n in tips:
-                T = _origin(j)
+                T = j.T_parent_joint
                 fixed.append(T if n == tips[0] else fixed.pop() @ T)
                 continue
-            fixed.append(_origin(j))
-            ax = j.find("axis")
-            axes.append(
-                [float(v) for v in (ax.get("xyz", "1 0 0") if ax is not None else "1 0 0").split()]
-            )
-            lim = j.find("limit")
-            if lim is None:
+            fixed.append(j.T_parent_joint)
+            axes.append(j.axis)
+            if j.limits is None:
                 raise InputError(f"URDF joint {n!r} has no limits")
-            lo.append(float(lim.get("lower", "0")))
-            hi.append(float(lim.get("upper", "0")))
+            lo.append(j.limits[0])
+            hi.append(j.limits[1])
         return cls(
             np.array(fixed),
             np.array(axes, dtype=np.float64),

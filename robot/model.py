@@ -1,8 +1,10 @@
 """Assemble a robot from its description (`robot.description`): one URDF text for `loadURDF`.
 
-The arm's URDF is read from the installed `pybullet_data` or the repository at run time
-(never fetched), its mesh paths are made absolute (`package://` prefixes resolved beside the
-URDF). A mounted hand's links and joints are added with the fixed joint that joins them (the
+The arm's URDF is read from the installed `pybullet_data`, the repository or the user's
+files at run time (never fetched), by the one URDF reader (`robot.urdf`): its mesh paths are
+made absolute (`package://` and relative paths resolved against the description's search
+path), and a link inertia PyBullet would zero is repaired (logged once per process and
+link). A mounted hand's links and joints are added with the fixed joint that joins them (the
 iiwa: the hand of `assets/dsteleop_hand.urdf`, its palm's inner face `FLANGE_TO_PALM_M` above
 the link-7 frame: the flange face sits 0.045 m above that frame, the palm plate is 0.030 m
 thick). A palm frame offset from its link gets a massless link `dsteleop_palm` on a fixed
@@ -11,6 +13,7 @@ joint. The combined text is written to a temporary file for `loadURDF`.
 
 from __future__ import annotations
 
+import logging
 import tempfile
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
@@ -18,7 +21,10 @@ from pathlib import Path
 
 from dsteleop.errors import InputError
 from dsteleop.robot.bullet import pb
-from dsteleop.robot.description import RobotDescription, load_description
+from dsteleop.robot.description import RobotDescription, load_description, urdf_models
+from dsteleop.robot.urdf import UrdfModel, repair_inertia
+
+log = logging.getLogger(__name__)
 
 #: The iiwa's arm joints and hand mount (its description, `robots/iiwa.toml`, is the source).
 ARM_JOINTS: tuple[str, ...] = tuple(f"lbr_iiwa_joint_{i}" for i in range(1, 8))
@@ -26,15 +32,31 @@ FLANGE_TO_PALM_M = 0.075
 PALM_FRAME_JOINT = "dsteleop_palm_joint"
 
 
-def _read_urdf(desc: RobotDescription, ref: str) -> ET.Element:
-    path = desc.resolve(ref)
-    if not path.is_file():
-        raise InputError(f"robot {desc.name}: no URDF {path} (is it installed fully?)")
-    root = ET.parse(path).getroot()
-    for mesh in root.iter("mesh"):
-        fn = mesh.get("filename", "").removeprefix("package://")
-        mesh.set("filename", str((path.parent / fn).resolve()))
-    return root
+#: (URDF file, link) pairs whose inertia repair was logged (once per process)
+_REPAIRS_LOGGED: set[tuple[str, str]] = set()
+
+
+def _repair_inertias(model: UrdfModel) -> None:
+    """Repair the inertia tensors PyBullet would zero (`robot.urdf.repair_inertia`), and
+    say so once per process and link."""
+    for link in model.root.findall("link"):
+        el = link.find("inertial/inertia")
+        if el is None:
+            continue
+        fixed = repair_inertia(el)
+        key = (str(model.path), str(link.get("name")))
+        if fixed is not None and key not in _REPAIRS_LOGGED:
+            _REPAIRS_LOGGED.add(key)
+            before, after = (", ".join(f"{v:.3g}" for v in x) for x in fixed)
+            log.warning(
+                "%s: link %r: principal moments of inertia (%s) kg m^2 are not physical "
+                "(negative, or one above the sum of the other two; PyBullet would zero them): "
+                "using (%s)",
+                model.path,
+                link.get("name"),
+                before,
+                after,
+            )
 
 
 def _xyz_rpy(xyz: tuple[float, ...], rpy: tuple[float, ...]) -> dict[str, str]:
@@ -44,10 +66,13 @@ def _xyz_rpy(xyz: tuple[float, ...], rpy: tuple[float, ...]) -> dict[str, str]:
 def robot_urdf_text(desc: RobotDescription | None = None) -> str:
     """The robot's URDF as one text (module docstring); default the iiwa."""
     desc = desc or load_description("iiwa")
-    arm = _read_urdf(desc, desc.urdf)
+    models = urdf_models(desc)
+    for model in models:
+        _repair_inertias(model)
+    arm = models[0].root
     if desc.mount is not None:
         m = desc.mount
-        for child in list(_read_urdf(desc, m.urdf)):
+        for child in list(models[1].root):
             arm.append(child)
         joint = ET.SubElement(arm, "joint", {"name": m.joint, "type": "fixed"})
         ET.SubElement(joint, "parent", {"link": m.parent_link})
@@ -77,25 +102,19 @@ def palm_tip_joints(desc: RobotDescription, urdf_text: str) -> tuple[str, ...]:
     Raises:
         InputError: the palm frame is not reached from the wrist through fixed joints.
     """
-    root = ET.fromstring(urdf_text)
-    joints = {j.get("name"): j for j in root.iter("joint")}
-    wrist = joints[desc.arm_joints[-1]]
-    child = wrist.find("child")
-    link = child.get("link") if child is not None else None
-    fixed: dict[str | None, list[ET.Element]] = {}
-    for j in root.iter("joint"):
-        p = j.find("parent")
-        if j.get("type") == "fixed" and p is not None:
-            fixed.setdefault(p.get("link"), []).append(j)
-    path: list[str] = []
-    frontier = [(link, path)]
+    joints = UrdfModel.from_text(urdf_text).joints
+    link = joints[desc.arm_joints[-1]].child
+    fixed: dict[str | None, list[str]] = {}
+    for j in joints.values():
+        if j.type == "fixed":
+            fixed.setdefault(j.parent, []).append(j.name)
+    frontier: list[tuple[str | None, list[str]]] = [(link, [])]
     while frontier:
         at, via = frontier.pop()
         if at == desc.palm_frame_link:
             return tuple(via)
-        for j in fixed.get(at, []):
-            c = j.find("child")
-            frontier.append((c.get("link") if c is not None else None, [*via, str(j.get("name"))]))
+        for name in fixed.get(at, []):
+            frontier.append((joints[name].child, [*via, name]))
     raise InputError(
         f"robot description {desc.path}: palm.link {desc.palm_link!r} is not fixed to the "
         f"arm's last joint {desc.arm_joints[-1]!r}"
