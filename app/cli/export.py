@@ -19,8 +19,8 @@ import json
 import sys
 from pathlib import Path
 
-from dsteleop.app.cli.progress import Progress
 from dsteleop.app.outpaths import output_dir
+from dsteleop.app.progress import Progress
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -26,9 +26,9 @@ from pathlib import Path
 from typing import Any
 
 from dsteleop.app.cli.options import add_config_options, arbitration_config, config_from_file
-from dsteleop.app.cli.progress import Progress
 from dsteleop.app.cli.world_options import add_world_arguments, world_overrides
 from dsteleop.app.outpaths import created_dir, output_dir
+from dsteleop.app.progress import Progress
 from dsteleop.arbitration import Mode, registered
 from dsteleop.errors import ConfigError, InputError
 

@@ -44,9 +44,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 from dsteleop.app.cli.options import arbitration_config
-from dsteleop.app.cli.progress import Progress
 from dsteleop.app.cli.world_options import add_world_arguments, world_overrides
 from dsteleop.app.outpaths import created_dir, output_dir
+from dsteleop.app.progress import Progress
 from dsteleop.errors import ConfigError, InputError
 
 if TYPE_CHECKING:  # the command imports them when it runs (an instant --help)

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from dsteleop.app.cli.progress import Progress
+from dsteleop.app.progress import Progress
 from dsteleop.app.study.core import ChunkResult, SimConfig, StudyResult, merge, run_chunk
 from dsteleop.arbitration.arbiters import compile_kernels
 from dsteleop.errors import ConfigError

@@ -665,7 +665,7 @@ def run_command(
     """
     import sys
 
-    from dsteleop.app.cli.progress import Progress
+    from dsteleop.app.progress import Progress
     from dsteleop.app.tune.cluster import RayExecutor, check_reachable
 
     check_out(out, resume)

@@ -1,4 +1,5 @@
-"""A terminal progress bar the commands share (their output folders: `app/outpaths.py`)."""
+"""A terminal progress bar the commands and the study share (beside `app/outpaths.py`: shared
+machinery lives in app/, not in app/cli, so the study and the sweep import no command)."""
 
 from __future__ import annotations
 
