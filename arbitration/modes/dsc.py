@@ -24,7 +24,7 @@ import functools
 from dataclasses import dataclass
 
 from dsteleop.arbitration.modes import ds
-from dsteleop.arbitration.modes.base import Array, ModeSpec, Quantities, Rows, check_range
+from dsteleop.arbitration.modes.base import ModeSpec, Quantities, Rows, check_range
 
 NAME = "DSC"
 
@@ -50,22 +50,16 @@ class DSCParams:
 
 
 @functools.lru_cache(maxsize=64)
-def _caps(params: DSCParams, dims: int) -> Array:
-    return ds.caps(
-        ds.DSParams(params.cap_translation, params.cap_rotation, params.cap_fingers), dims
-    )
+def _as_ds(params: DSCParams) -> ds.DSParams:
+    """DS's parameters with DSC's caps (cached: asked for every tick)."""
+    return ds.DSParams(params.cap_translation, params.cap_rotation, params.cap_fingers)
 
 
 def alpha(params: DSCParams, q: Quantities, rows: Rows, state: ds.Windows) -> ds.Windows:
+    """DS's rule (`ds.alpha`) on P(R_i) tempered by the confidence c_i ** power."""
     c = q.confidence[rows]
     q.P_robot[rows] = q.P_robot[rows] * (c if params.power == 1.0 else c**params.power)
-    new_alpha, new_B = ds._windows_rows(
-        q.P_robot, q.P_human, q.B, q.alpha,
-        ds._read_only(state.alpha_window), ds._read_only(state.B_window), state.count, rows,
-        _caps(params, q.alpha.shape[1]),
-    )  # fmt: skip
-    new_alpha.flags.writeable = new_B.flags.writeable = False
-    return ds.Windows(new_alpha, new_B, state.count + 1)
+    return ds.alpha(_as_ds(params), q, rows, state)
 
 
 SPEC = ModeSpec(
