@@ -316,6 +316,16 @@ def test_run_with_a_bad_robot_or_no_far_end_is_one_line_exit_2(tmp_path):
     assert len(errors) == 1 and "no answer from" in errors[0], r.stderr
 
 
+def ticks(loop: Any, seconds: float) -> list[Any]:
+    """The loop's records of `seconds` of ticks at 30 Hz on its own clock."""
+    out = []
+    t_end = loop.clock.now() + seconds
+    while (now := loop.clock.now()) < t_end:
+        out.append(loop.tick(now))
+        loop.clock.sleep_until(now + 1 / 30)
+    return out
+
+
 def test_serve_builds_the_linked_robot_with_its_twin_and_shows_it_lost(tmp_path):
     """What `serve --robot zenoh:CONFIG` builds (compose.build, live, with scene poses): the
     page's scene is the twin's kitchen, the loop's ticks carry its poses, a killed far end
@@ -337,19 +347,11 @@ def test_serve_builds_the_linked_robot_with_its_twin_and_shows_it_lost(tmp_path)
         assert loop.task.scene() is not None
         assert loop.session_meta()["robot"]["description"]["name"] == "panda"
 
-        def ticks(seconds: float) -> list[Any]:
-            out = []
-            t_end = loop.clock.now() + seconds
-            while (now := loop.clock.now()) < t_end:
-                out.append(loop.tick(now))
-                loop.clock.sleep_until(now + 1 / 30)
-            return out
-
-        records = ticks(1.0)
+        records = ticks(loop, 1.0)
         assert records[-1].plant.scene is not None and records[-1].reason != ROBOT_LOST
         far.kill()
         t_kill = loop.clock.now()
-        records = ticks(1.0)
+        records = ticks(loop, 1.0)
         lost = [r for r in records if r.reason == ROBOT_LOST]
         assert lost and lost[0].t_s - t_kill <= 0.2 + 2 / 30 + 0.05, lost[0].t_s - t_kill
         assert all(r.status is Status.LOST for r in lost)
@@ -381,14 +383,6 @@ def test_the_operators_stop_halts_a_linked_robot_through_the_loop(tmp_path):
     built = build(LoopOptions.of("demo", robot=f"zenoh:{cfg}"), realtime=True, export_scene=True)
     loop = built.loop
 
-    def ticks(seconds: float) -> list[Any]:
-        out = []
-        t_end = loop.clock.now() + seconds
-        while (now := loop.clock.now()) < t_end:
-            out.append(loop.tick(now))
-            loop.clock.sleep_until(now + 1 / 30)
-        return out
-
     def speeds(records: list[Any]) -> NDArray[np.float64]:
         p = np.array([r.X_current.position for r in records])
         t = np.array([r.t_s for r in records])
@@ -397,16 +391,16 @@ def test_the_operators_stop_halts_a_linked_robot_through_the_loop(tmp_path):
     try:
         assert isinstance(loop.robot, ZenohRobot)
         loop.hand.start()  # as `run` does before its first tick: the demo's hand starts
-        running = ticks(1.5)  # the demo reaches for the utensil from ~0.3 s to ~2.3 s
+        running = ticks(loop, 1.5)  # the demo reaches for the utensil from ~0.3 s to ~2.3 s
         assert speeds(running[-15:]).max() > 0.01  # the demo's hand moves the far arm
         loop.controls.stop_robot()
-        stopped = ticks(2.0)
+        stopped = ticks(loop, 2.0)
         assert all(r.stopped and r.reason == loop_tick.STOPPED for r in stopped)
         assert not any(r.reason == ROBOT_LOST for r in stopped)  # the link is alive
         settled = [r for r in stopped if r.t_s > stopped[0].t_s + 0.5]
         assert len(settled) > 30 and speeds(settled).max() < 0.005, speeds(settled).max()
         loop.controls.resume_robot()
-        after = ticks(4.0)
+        after = ticks(loop, 4.0)
         assert not any(r.stopped for r in after) and after[0].notes == ("resume",)
         assert speeds(after).max() > 0.01  # driven again
         # Commands kept coming all along: the far end's watchdog never halted it.
