@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -23,6 +24,13 @@ CELL_FOLDERS = ("cells", "equal-count")
 
 def _configs() -> list[Path]:
     return sorted(p for p in TUNED.rglob("*.json") if "runs" not in p.relative_to(TUNED).parts)
+
+
+def _disagreement_world() -> dict[str, Any]:
+    """SimConfig's fields for `--world disagreement`, as sim and tune read the option."""
+    parser = argparse.ArgumentParser()
+    add_world_arguments(parser)
+    return world_overrides(parser.parse_args(["--world", "disagreement"]))
 
 
 def test_every_shipped_configuration_is_a_config_file_with_both_modes_tuned() -> None:
@@ -47,9 +55,7 @@ def test_the_cell_folders_cover_the_axes_design(folder: str) -> None:
 
 
 def test_the_disagreement_files_record_the_world_they_were_tuned_in() -> None:
-    parser = argparse.ArgumentParser()
-    add_world_arguments(parser)
-    preset = world_overrides(parser.parse_args(["--world", "disagreement"]))
+    preset = _disagreement_world()
     for path in (TUNED / "disagreement.json", TUNED / "equal-count" / "disagreement.json"):
         world = json.loads(path.read_text())["world"]["overrides"]
         assert world["world"] == {"goal_sigma_m": 0.0}
@@ -61,9 +67,7 @@ def test_the_tuned_disagreement_headline_holds_on_held_out_people() -> None:
     """docs/sim.md (a): with the shipped configuration, people who disagree with the robot's
     grasp succeed under DS, in their own grasp, and mostly fail under S (held out: 0.998 and
     0.383 over 1000 people); 60 people of seed 1 with wide margins."""
-    parser = argparse.ArgumentParser()
-    add_world_arguments(parser)
-    world = world_overrides(parser.parse_args(["--world", "disagreement"]))
+    world = _disagreement_world()
     arb, _ = config_from_file(TUNED / "equal-count" / "disagreement.json", [])
     cfg = sc.SimConfig(
         trajectories=60,
