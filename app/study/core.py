@@ -87,7 +87,7 @@ from dsteleop.arbitration import (
 from dsteleop.arbitration.history import history_terms
 from dsteleop.arbitration.se3 import ROT, TRANS
 from dsteleop.arbitration.se3 import stack as stack_states
-from dsteleop.errors import ConfigError
+from dsteleop.errors import ConfigError, ContractError
 from dsteleop.robot.task import Phase
 
 Array = NDArray[np.float64]
@@ -959,7 +959,7 @@ class _Tape:
     def start(self, T: int, J: int) -> _Tape:
         """Ready for a run of the same shape."""
         if (T, J) != self.shape:
-            raise ValueError(f"a tape of {self.shape} for a run of {(T, J)}")
+            raise ContractError(f"a tape of {self.shape} for a run of {(T, J)}")
         self._from = self._ticks = 0
         return self
 
@@ -1023,7 +1023,7 @@ def _simulate(
     """
     C, N = len(modes), goals.shape[0]
     if record is not None and C != 1:
-        raise ValueError("record needs a single mode")
+        raise ContractError("record needs a single mode")
     T, J = hands.T, C * N
     # One arbiter steps every mode's rows at once (a mixed batch: row j is in mode j // N).
     arb = make_arbiter(modes[0], cfg.arbitration)
@@ -1333,7 +1333,7 @@ def merge(cfg: SimConfig, chunks: Sequence[ChunkResult]) -> StudyResult:
     ordered = sorted(chunks, key=lambda c: int(c.indices[0]))
     idx = np.concatenate([c.indices for c in ordered])
     if not np.array_equal(idx, np.arange(cfg.trajectories)):
-        raise ValueError("chunks do not cover the trajectories exactly once")
+        raise ContractError("chunks do not cover the trajectories exactly once")
 
     modes = {m.value: concat_results([c.modes[m.value] for c in ordered]) for m in cfg.modes}
     return StudyResult(
