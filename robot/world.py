@@ -10,6 +10,10 @@ top is the plane z = 0 (the robot's base stands at the table's near edge):
               rail, so a pull up and towards the bin frees them.
     bin       centred at (0.58, -0.26): inner 0.36 x 0.36 m, walls 0.08 m high
     floor     plane z = -0.75
+    camera    the robot's own RGB-D camera, 1 m above the robot's base, looking down at the
+              table between holder and bin (`perception.ROBOT_CAMERA_M`, kept there so the
+              task imports no PyBullet): the robot perceives the utensils and the bin
+              through it, 0.8-1.0 m away
 
 Every object is built from primitives with `createMultiBody`; each body's base frame is its
 centre-of-mass frame (no inertial offset), so the shapes below are placed relative to it and
