@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dsteleop.app.study.core import SimConfig, all_modes, run_chunk
+from dsteleop.app.study.batch import run_chunk
+from dsteleop.app.study.planar import SimConfig, all_modes
 from dsteleop.app.tune.space import default_space, parse_space
 from dsteleop.app.viewer.server import mode_names
 from dsteleop.arbitration import (
