@@ -68,8 +68,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import erf
 
+from dsteleop.arbitration.jit import kernel
 from dsteleop.arbitration.modes.base import check_range
-from dsteleop.arbitration.se3 import HandState, diff, log_relative
+from dsteleop.arbitration.se3 import HandState, diff, log_relative_of
 from dsteleop.errors import ConfigError
 
 Array = NDArray[np.float64]
@@ -186,7 +187,14 @@ class GoalBelief:
         object.__setattr__(self, "_scale", scale)
         object.__setattr__(self, "_prior", prior)
         object.__setattr__(self, "_goals", goals)  # batch (rows, K)
-        object.__setattr__(self, "_sigma2_over_s2_sum", ((sigma / self.scale) ** 2).sum(-1))
+        # The goals as the compiled cost takes them: (rows K, ...) C-contiguous rows.
+        flat = tuple(
+            np.ascontiguousarray(a.reshape(rows * K, *a.shape[2:]), dtype=np.float64)
+            for a in (goals.position, goals.rotation, goals.openness)
+        )
+        object.__setattr__(self, "_flat_goals", flat)
+        extra = np.ascontiguousarray(((sigma / self.scale) ** 2).sum(-1))
+        object.__setattr__(self, "_sigma2_over_s2_sum", extra)
         object.__setattr__(self, "_table", _agreement(goals, sigma, self.scale))
 
     @property
@@ -223,15 +231,14 @@ class GoalBelief:
 
     def cost_to_go(self, X: HandState) -> Array:
         """(n, K) V_g(x) of the module docstring, for the states X of batch (n,)."""
-        goals: HandState = self.__dict__["_goals"]
-        s = self.scale
-        # diff(goal_g, x) of every row and candidate, (n, K, ...) by broadcasting (rows, K)
-        # with (n, 1): each part squared over its tolerance.
-        dp = (goals.position - X.position[:, None]) / s[0]
-        dr = log_relative(goals.rotation, X.rotation[:, None]) / s[3]
-        dg = (goals.openness - X.openness[:, None]) / s[6:]
-        sq = (dp * dp).sum(-1) + (dr * dr).sum(-1) + (dg * dg).sum(-1)
-        return np.sqrt(sq + self.__dict__["_sigma2_over_s2_sum"])
+        gp, gR, gg = self.__dict__["_flat_goals"]
+        xp, xR, xg = (
+            np.ascontiguousarray(a, dtype=np.float64) for a in (X.position, X.rotation, X.openness)
+        )
+        extra: Array = self.__dict__["_sigma2_over_s2_sum"]
+        if extra.shape[0] not in (1, xp.shape[0]):
+            raise ConfigError(f"belief over {extra.shape[0]} rows given {xp.shape[0]} states")
+        return _cost_to_go(gp, gR, gg, xp, xR, xg, extra, self.scale, self.K)
 
     def update(self, belief: Array, X_human: HandState, X_human_prev: HandState) -> Array:
         """One tick of Bayes' rule and the floor (module docstring): the new (n, K) belief
@@ -281,6 +288,34 @@ class GoalBelief:
             share = (1.0 - eps * low.sum(axis=1, keepdims=True)) / rest.sum(axis=1, keepdims=True)
             out = np.where(low, eps, rest * share)
         return out
+
+
+@kernel
+def _cost_to_go(
+    gp: Array, gR: Array, gg: Array, xp: Array, xR: Array, xg: Array, extra: Array, s: Array,
+    K: int,
+) -> Array:  # fmt: skip
+    """(n, K) V_g(x) of the module docstring: the goals (rows K, ...) flattened row-major
+    (rows = 1: shared by every state), the n states, `extra` (rows, K) the sum of
+    sigma^2 / s^2 over the dimensions, s (6 + F,) the tolerances."""
+    n = xp.shape[0]
+    shared = extra.shape[0] == 1
+    out = np.empty((n, K))
+    for r in range(n):
+        base = 0 if shared else r
+        for k in range(K):
+            j = base * K + k
+            sq = extra[base, k]
+            for i in range(3):
+                d = (gp[j, i] - xp[r, i]) / s[i]
+                sq += d * d
+            w0, w1, w2 = log_relative_of(gR, j, xR, r)
+            sq += (w0 / s[3]) ** 2 + (w1 / s[4]) ** 2 + (w2 / s[5]) ** 2
+            for f in range(gg.shape[1]):
+                d = (gg[j, f] - xg[r, f]) / s[6 + f]
+                sq += d * d
+            out[r, k] = math.sqrt(sq)
+    return out
 
 
 def _with_rows(X: HandState) -> HandState:

@@ -26,6 +26,10 @@ Defaults (and why):
     mode_params       each mode's own parameters (`arbitration/modes/`), by mode name; written
                       `<mode>.<field>` in the flat form (`to_dict`, `--param scalar.cap=0.5`);
                       a mode's shorthand sets several (`--param DS.cap=0.5`: DS's three caps).
+    belief            the belief over candidate goals (`belief.BeliefParams`: beta, epsilon,
+                      the tolerances that scale each dimension; docs/METHOD.md §10), written
+                      `belief.<field>` in the flat form (`--param belief.beta=2`); read by
+                      whoever keeps a belief (the loop with `--goal infer`), not by eq (1)-(8).
     human_reference   what eq (4)-(6) read as X_human (docs/METHOD.md §2): "hand", the hand's
                       mapped pose (the paper's reading; under the rate mapping the integral of
                       the hand's motion, which drifts without bound from a robot that resists
@@ -54,6 +58,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dsteleop.arbitration import modes
+from dsteleop.arbitration.belief import NAME as BELIEF
+from dsteleop.arbitration.belief import BeliefParams
 from dsteleop.errors import ConfigError
 
 #: Fields of earlier versions, read from old sessions and dropped: eq (4)'s floor and eq (6)'s
@@ -69,6 +75,8 @@ HUMAN_REFERENCES: tuple[str, ...] = ("hand", "leaky")
 
 #: The fields that are words, not numbers.
 _WORDS = frozenset({"human_reference"})
+#: The fields that hold a group of parameters, written `<group>.<field>` in the flat form.
+_GROUPS = frozenset({"mode_params", "belief"})
 
 
 @dataclass(frozen=True)
@@ -101,10 +109,14 @@ class ArbitrationConfig:
     human_leak_s: float = 1.0
     #: (mode name, its parameters) of every mode with parameters of its own.
     mode_params: tuple[tuple[str, Any], ...] = field(default_factory=modes.default_params)
+    #: The belief over candidate goals (`belief.<field>` in the flat form).
+    belief: BeliefParams = field(default_factory=BeliefParams)
 
     def __post_init__(self) -> None:
+        if not isinstance(self.belief, BeliefParams):
+            raise InvalidConfig(f"belief must be BeliefParams, got {self.belief!r}")
         for f in dataclasses.fields(self):
-            if f.name == "mode_params" or f.name in _WORDS:
+            if f.name in _GROUPS or f.name in _WORDS:
                 continue
             value = getattr(self, f.name)
             if isinstance(value, bool) or not isinstance(value, (int, float)):
@@ -136,18 +148,23 @@ class ArbitrationConfig:
         return None if cls is None else cls()
 
     def to_dict(self) -> dict[str, Any]:
-        """Every field by name, the modes' own parameters as `<mode>.<field>`."""
+        """Every field by name, the modes' own parameters as `<mode>.<field>`, the belief's
+        as `belief.<field>`."""
         out = {f: getattr(self, f) for f in self.field_names()}
         for name, params in self.mode_params:
             for k, v in dataclasses.asdict(params).items():
                 out[f"{name}.{k}"] = v
+        for k, v in dataclasses.asdict(self.belief).items():
+            out[f"{BELIEF}.{k}"] = v
         return out
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> ArbitrationConfig:
-        """From `to_dict`'s form; a missing mode parameter takes its default."""
+        """From `to_dict`'s form; a missing mode or belief parameter takes its default (a
+        session recorded before the belief had parameters reads the defaults)."""
         names = set(cls.field_names())
         data = _expand_shorthands({k: v for k, v in data.items() if k not in RETIRED})
+        belief = _belief_of(data)
         own: dict[str, dict[str, Any]] = {}
         for k in [k for k in data if "." in k]:
             mode, _, name = k.partition(".")
@@ -173,7 +190,7 @@ class ArbitrationConfig:
                     f"{', '.join(f'{mode}.{f}' for f in sorted(fields))})"
                 )
             params[mode] = dataclasses.replace(params[mode], **given)
-        return cls(**data, mode_params=tuple(params.items()))
+        return cls(**data, mode_params=tuple(params.items()), belief=belief)
 
     @classmethod
     def word_fields(cls) -> frozenset[str]:
@@ -182,8 +199,9 @@ class ArbitrationConfig:
 
     @classmethod
     def field_names(cls) -> tuple[str, ...]:
-        """The shared parameters (the modes' own are in `mode_params`)."""
-        return tuple(f.name for f in dataclasses.fields(cls) if f.name != "mode_params")
+        """The shared parameters (the modes' own are in `mode_params`, the belief's in
+        `belief`)."""
+        return tuple(f.name for f in dataclasses.fields(cls) if f.name not in _GROUPS)
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), sort_keys=True)
@@ -214,6 +232,21 @@ class ArbitrationConfig:
     def still_offset(self, n_fingers: int) -> NDArray[np.float64]:
         """Eq (6): the smallest difference from the start that has a direction."""
         return _per_dim(self.still_distance_m, self.still_angle_rad, self.still_openness, n_fingers)
+
+
+def _belief_of(data: dict[str, Any]) -> BeliefParams:
+    """The belief's parameters, taken out of the flat form `data` (`belief.<field>`; the
+    others keep their defaults); an unknown field is a ConfigError listing the known."""
+    prefix = f"{BELIEF}."
+    given = {k[len(prefix) :]: data.pop(k) for k in [k for k in data if k.startswith(prefix)]}
+    fields = {f.name for f in dataclasses.fields(BeliefParams)}
+    bad = sorted(set(given) - fields)
+    if bad:
+        raise InvalidConfig(
+            f"unknown parameter {prefix}{bad[0]} (known: "
+            f"{', '.join(prefix + f for f in sorted(fields))})"
+        )
+    return BeliefParams(**given)
 
 
 def _expand_shorthands(data: dict[str, Any]) -> dict[str, Any]:

@@ -1,13 +1,20 @@
-"""dsteleop.robot: a PyBullet KUKA iiwa with a four-finger hand and the kitchen pick-and-place task.
+"""dsteleop.robot: a simulated arm and hand built from a robot description (robot/robots/*.toml:
+the KUKA iiwa with the project's four-finger hand, the Franka Panda with its gripper) and the
+kitchen pick-and-place task, in PyBullet.
 
-Public API (see docs/robot.md):
-    KitchenEnv, EnvConfig            robot + world + task; reset / set_target / step / state,
-                                     geometry() and poses() for a viewer
-    RobotConfig, RobotState, Contact control settings and the per-tick read-back
+Public API (see docs/robot.md, docs/robots.md):
+    KitchenEnv, EnvConfig                robot + world + task; reset / set_target / step /
+                                         state, geometry() and poses() for a viewer
+    RobotConfig, BulletArmState, Contact control settings and the per-tick read-back of the
+                                         simulated arm (`arm.BulletArm`)
     PickPlaceTask, TaskConfig, Phase, EventKind, TaskEvent, Outcome
     run_autonomous, goal_seeking_step, noise_free, RunResult   the scripted alpha = 1 run
     SceneGeometry, ScenePoses, VisualGeometry                  viewer export (no pybullet)
     FINGER_NAMES, UTENSIL_NAMES
+
+The loop never sees these classes: it drives a robot through the `Robot` port of
+`app/ports.py` (its `RobotState` is the port's measured state), which
+`app/plants/simulated.py` implements on a `KitchenEnv`.
 
 Names are resolved lazily, so `import dsteleop.robot.scene` (what a viewer needs) never
 loads PyBullet.
@@ -19,7 +26,7 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from dsteleop.robot.arm import Contact, RobotConfig, RobotState, Workspace
+    from dsteleop.robot.arm import BulletArmState, Contact, RobotConfig, Workspace
     from dsteleop.robot.env import EnvConfig, KitchenEnv
     from dsteleop.robot.hand_urdf import FINGER_NAMES
     from dsteleop.robot.scene import SceneGeometry, ScenePoses, VisualGeometry
@@ -37,7 +44,7 @@ if TYPE_CHECKING:
 _EXPORTS = {
     "Contact": "arm",
     "RobotConfig": "arm",
-    "RobotState": "arm",
+    "BulletArmState": "arm",
     "Workspace": "arm",
     "EnvConfig": "env",
     "KitchenEnv": "env",
@@ -61,6 +68,7 @@ _EXPORTS = {
 __all__ = [
     "FINGER_NAMES",
     "UTENSIL_NAMES",
+    "BulletArmState",
     "Contact",
     "EnvConfig",
     "EventKind",
@@ -69,7 +77,6 @@ __all__ = [
     "Phase",
     "PickPlaceTask",
     "RobotConfig",
-    "RobotState",
     "RunResult",
     "SceneGeometry",
     "ScenePoses",

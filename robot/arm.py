@@ -1,7 +1,7 @@
 """The arm + hand of a robot description under position control: pose and openness in,
 achieved state out.
 
-One control tick (`Robot.set_target` then `Robot.step`, `control_dt_s`: 1/30 s by default,
+One control tick (`BulletArm.set_target` then `BulletArm.step`, `control_dt_s`: 1/30 s by default,
 1/rate for a loop at another rate, `RobotConfig.for_period`):
 
     set_target(p, R, g):  p clamped into the workspace (box, then reach sphere about the
@@ -20,7 +20,7 @@ Finger openness in the returned `HandState` is the commanded set-point, not the 
 one: a finger stopped by an object keeps squeezing as long as its command stays closed,
 which is what a closed-loop integrator X_next = integrate(X_current, U, dt) needs (with the
 measured value, a hand that stopped moving would command "as open as it is now" and let
-go). The measured openness is `RobotState.openness_measured`.
+go). The measured openness is `BulletArmState.openness_measured`.
 
 Grasping is contact and friction. Three rules keep it stable in a rigid-body simulator:
     soft pads       the finger links touch like rubber fingertip pads: a spring-damper
@@ -254,7 +254,7 @@ class Contact:
 
 
 @dataclass(frozen=True)
-class RobotState:
+class BulletArmState:
     """What the robot achieved after a tick (never NaN).
 
     Attributes:
@@ -301,7 +301,7 @@ def _as_vec(x: object, n: int, name: str) -> Array:
     return a
 
 
-class Robot:
+class BulletArm:
     """The arm + hand in a PyBullet client; see the module docstring for one tick.
 
     Args:
@@ -329,7 +329,7 @@ class Robot:
         self.desc = desc
         self.workspace = Workspace.of(desc)
         self._graspable = frozenset(graspable)
-        self._state_cache: RobotState | None = None
+        self._state_cache: BulletArmState | None = None
         self._held: int | None = None
         self._helper_cid: int | None = None
         self._contacts: tuple[Contact, ...] = ()
@@ -798,21 +798,21 @@ class Robot:
             )
         return tuple(out)
 
-    def state(self) -> RobotState:
-        """The achieved state after the last tick (see `RobotState`); cached until the next
+    def state(self) -> BulletArmState:
+        """The achieved state after the last tick (see `BulletArmState`); cached until the next
         `set_target`, `step` or reset."""
         if self._state_cache is None:
             self._state_cache = self._read_state()
         return self._state_cache
 
-    def _read_state(self) -> RobotState:
+    def _read_state(self) -> BulletArmState:
         p, R = self.palm_pose()
         states = pb.getJointStates(self._body, self._all_idx, physicsClientId=self._c)
         q_by_index = {i: float(s[0]) for i, s in zip(self._all_idx, states, strict=True)}
         joints = {n: q_by_index[j.index] for n, j in self._r.joints.items()}
         if not (np.isfinite(p).all() and np.isfinite(R).all()):  # pragma: no cover - guard
             raise InputError("simulation diverged: palm pose is not finite")
-        return RobotState(
+        return BulletArmState(
             palm=HandState(p, R, self._openness_cmd.copy()),
             openness_measured=self.openness_measured(q_by_index),
             joint_positions_rad=MappingProxyType(joints),

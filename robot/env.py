@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 
 from dsteleop.arbitration.se3 import so3_exp
 from dsteleop.errors import ConfigError, InputError
-from dsteleop.robot.arm import Robot, RobotConfig, RobotState
+from dsteleop.robot.arm import BulletArm, BulletArmState, RobotConfig
 from dsteleop.robot.bullet import pb
 from dsteleop.robot.description import RobotDescription, load_description
 from dsteleop.robot.kinematics import ArmChain
@@ -131,7 +131,7 @@ class KitchenEnv:
         self._chain = ArmChain.from_urdf(
             self._urdf_text, desc.arm_joints, palm_tip_joints(desc, self._urdf_text)
         )
-        self._robot: Robot | None = None
+        self._robot: BulletArm | None = None
         self._loaded: LoadedRobot | None = None
         self._world: WorldBodies | None = None
         self._task: PickPlaceTask | None = None
@@ -155,7 +155,7 @@ class KitchenEnv:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def reset(self, utensil: str = "spoon", seed: int = 0) -> RobotState:
+    def reset(self, utensil: str = "spoon", seed: int = 0) -> BulletArmState:
         """Rebuild the scene, settle it, and start a run for `utensil`.
 
         Args:
@@ -179,7 +179,7 @@ class KitchenEnv:
         pb.setGravity(0.0, 0.0, -GRAVITY_MPS2, physicsClientId=c)
         self._loaded = load_robot(c, urdf_text=self._urdf_text)
         self._world = build_world(c)
-        self._robot = Robot(
+        self._robot = BulletArm(
             c,
             self._loaded,
             self._chain,
@@ -208,7 +208,7 @@ class KitchenEnv:
 
     # ------------------------------------------------------------------ access
     @property
-    def robot(self) -> Robot:
+    def robot(self) -> BulletArm:
         """The robot (after `reset`)."""
         if self._robot is None:
             raise InputError("call reset() first")
@@ -240,10 +240,10 @@ class KitchenEnv:
 
     # ------------------------------------------------------------------ control
     def set_target(self, position_m: Array, rotation: Array, openness: Array) -> None:
-        """Command the palm pose and finger openness (see `Robot.set_target`)."""
+        """Command the palm pose and finger openness (see `BulletArm.set_target`)."""
         self.robot.set_target(position_m, rotation, openness)
 
-    def step(self) -> RobotState:
+    def step(self) -> BulletArmState:
         """One control tick: physics, then task bookkeeping. Returns the robot state."""
         self.step_robot()
         return self.observe_task()
@@ -252,7 +252,7 @@ class KitchenEnv:
         """The physics of one control tick under the current targets."""
         self.robot.step()
 
-    def observe_task(self) -> RobotState:
+    def observe_task(self) -> BulletArmState:
         """The task's bookkeeping after the physics of a tick (`last_events`); returns the
         robot's state."""
         state = self.robot.state()
@@ -266,11 +266,11 @@ class KitchenEnv:
         self.robot.follow(joint_positions, openness)
         self.robot.step()
 
-    def state(self) -> RobotState:
+    def state(self) -> BulletArmState:
         """The robot's current state."""
         return self.robot.state()
 
-    def _observe(self, state: RobotState) -> TaskObservation:
+    def _observe(self, state: BulletArmState) -> TaskObservation:
         p, _ = pb.getBasePositionAndOrientation(self._utensil_id, physicsClientId=self._c)
         name = self.task.utensil
         robot = self.robot

@@ -37,7 +37,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from dsteleop.app.study import core
+from dsteleop.app.study import planar
 from dsteleop.app.study.sweep import AXES, DESIGNS, cell_name, centre, default_grid, design_cells
 
 #: The tune options that set a cell's world, in `AXES` order (app/cli/world_options.py).
@@ -48,7 +48,7 @@ DEFAULT_MODES: tuple[str, ...] = ("DS", "scalar")
 def cells(design: str) -> list[tuple[float, ...]]:
     """The cells of `design` over the sweep's default grid, around the default world: the
     cells `dsteleop sim --sweep --sweep-design DESIGN` runs."""
-    return design_cells(default_grid(), design, centre(core.SimConfig()))
+    return design_cells(default_grid(), design, centre(planar.SimConfig()))
 
 
 def tune_command(

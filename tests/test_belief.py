@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dsteleop.app.study.core import SimConfig, all_modes, run_chunk
+from dsteleop.app.study.batch import run_chunk
+from dsteleop.app.study.planar import SimConfig, all_modes
 from dsteleop.app.tune.space import default_space, parse_space
 from dsteleop.app.viewer.server import mode_names
 from dsteleop.arbitration import (
@@ -373,6 +374,10 @@ def test_the_study_runs_the_confidence_modes() -> None:
         (lambda: ArbitrationConfig().replace(**{"DSC.cap": 0.0}), r"DSC\.cap_translation"),
         (lambda: ArbitrationConfig().replace(**{"conf_scalar.threshold": 1.0}),
          r"conf_scalar\.threshold must be in \[0, 0\.95\]"),
+        (lambda: ArbitrationConfig().replace(**{"belief.beta": 0.0}),
+         r"belief\.beta must be in \(0, 100\]"),
+        (lambda: ArbitrationConfig.from_dict({"belief.bogus": 1.0}),
+         r"unknown parameter belief\.bogus \(known: belief\.beta, belief\.epsilon"),
     ],
 )  # fmt: skip
 def test_bad_belief_and_mode_parameters_are_a_config_error(make: object, match: str) -> None:
@@ -394,13 +399,38 @@ def test_a_confidence_out_of_range_or_shape_is_a_config_error() -> None:
             arb.step(arb.initial_state(D, (3,)), _inputs(rng, 3, **bad))
 
 
-@pytest.mark.parametrize("param", ["DSC.power=20", "conf_scalar.threshold=1"])
+def test_the_belief_parameters_live_in_the_arbitration_config() -> None:
+    """`belief.<field>` in the flat form (sessions, --param, --config, --space), round-tripped
+    through JSON; a configuration without them (an older session) takes the defaults."""
+    cfg = ArbitrationConfig().replace(**{"belief.beta": 2.5, "belief.scale_m": 0.03})
+    assert cfg.belief == BeliefParams(beta=2.5, scale_m=0.03)
+    flat = cfg.to_dict()
+    assert {k for k in flat if k.startswith("belief.")} == {
+        f"belief.{f.name}" for f in dataclasses.fields(BeliefParams)
+    }
+    assert ArbitrationConfig.from_json(cfg.to_json()) == cfg
+    old = {k: v for k, v in flat.items() if not k.startswith("belief.")}
+    assert ArbitrationConfig.from_dict(old).belief == BeliefParams()
+    assert "belief" not in ArbitrationConfig.field_names()
+    (dim,) = parse_space(["belief.beta=log:0.3:10"])
+    assert dim.name == "belief.beta" and dim.log
+
+
+@pytest.mark.parametrize(
+    ("command", "param"),
+    [("sim", "DSC.power=20"), ("sim", "conf_scalar.threshold=1"), ("sim", "belief.beta=200"),
+     ("run", "belief.epsilon=0.5"), ("run", "belief.bogus=1"), ("serve", "belief.scale_m=0")],
+)  # fmt: skip
 def test_a_bad_mode_parameter_on_the_command_line_is_one_line_and_exit_2(
-    param: str, tmp_path: Path
+    command: str, param: str, tmp_path: Path
 ) -> None:
+    extra = {
+        "sim": ["--trajectories", "2", "--out", "o"],
+        "run": ["--max-seconds", "1"],
+        "serve": ["--source", "demo", "--port", "0"],
+    }[command]
     r = subprocess.run(
-        [sys.executable, "-m", "dsteleop.app.cli.main", "sim", "--trajectories", "2",
-         "--param", param, "--out", "o"],
+        [sys.executable, "-m", "dsteleop.app.cli.main", command, "--param", param, *extra],
         capture_output=True, text=True, timeout=120, cwd=tmp_path, check=False,
     )  # fmt: skip
     assert r.returncode == 2, r.stderr

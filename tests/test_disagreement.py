@@ -12,7 +12,9 @@ import pytest
 from dsteleop.app.cli.main import main
 from dsteleop.app.operator.closed_loop import Intention
 from dsteleop.app.operator.world import Impairments
-from dsteleop.app.study import core as sc
+from dsteleop.app.study import batch, results
+from dsteleop.app.study import planar as study_planar
+from dsteleop.app.study import summary as study_summary
 from dsteleop.app.study.grasps import Grasps, settle_after
 from dsteleop.arbitration import HandState, Mode
 from dsteleop.errors import ConfigError
@@ -21,11 +23,11 @@ from tests.test_operator_closed_loop import one_stage, operators, planar
 WORLD = Impairments().replace(goal_sigma_m=0.0)
 
 
-def config(n: int, **kw: object) -> sc.SimConfig:
+def config(n: int, **kw: object) -> study_planar.SimConfig:
     opts: dict[str, object] = {"trajectories": n, "grasps": Grasps(), "world": WORLD}
     opts["max_paths"] = 0
     opts.update(kw)
-    return sc.SimConfig(**opts)  # type: ignore[arg-type]
+    return study_planar.SimConfig(**opts)  # type: ignore[arg-type]
 
 
 # --- the world --------------------------------------------------------------------------------
@@ -37,10 +39,12 @@ def test_either_grasp_succeeds_and_neither_is_inside_the_others_tolerance() -> N
     assert top == pytest.approx(math.pi / 4) and side == pytest.approx(-math.pi / 4)
     xy = np.tile(cfg.handle_xy_m, (4, 1))
     heading = np.array([top, side, (top + side) / 2, side - 0.36])
-    got = sc.in_success_region(xy, heading, cfg.handle_xy_m, cfg.grasp_headings, 0.03, 0.35)
+    got = study_planar.in_success_region(
+        xy, heading, cfg.handle_xy_m, cfg.grasp_headings, 0.03, 0.35
+    )
     assert got.tolist() == [True, True, False, False]
     # The default world has the one grasp: the side grasp fails there.
-    one = sc.in_success_region(xy, heading, cfg.handle_xy_m, math.pi / 4, 0.03, 0.35)
+    one = study_planar.in_success_region(xy, heading, cfg.handle_xy_m, math.pi / 4, 0.03, 0.35)
     assert one.tolist() == [True, False, False, False]
     # Each agent's grasp lies outside the other's tolerance (task's 0.35 + person's 0.175).
     assert abs(top - side) > cfg.success_heading_rad + cfg.operator_tolerance_rad
@@ -50,7 +54,7 @@ def test_the_robot_goes_to_its_grasp_at_the_true_handle() -> None:
     for grasp, heading in (("top", math.pi / 4), ("side", -math.pi / 4)):
         cfg = config(3, grasps=Grasps(robot_grasp=grasp))
         for n in range(3):
-            g = sc.robot_goal(cfg, n, 0)
+            g = study_planar.robot_goal(cfg, n, 0)
             assert g[:2] == pytest.approx(cfg.handle_xy_m) and g[2] == pytest.approx(heading)
 
 
@@ -59,7 +63,7 @@ def test_the_share_of_people_who_prefer_the_robots_grasp() -> None:
     (binomial, 5 sd), and each person aims for its own grasp's heading."""
     for share in (0.5, 0.2):
         cfg = config(2000, grasps=Grasps(prefer_robot_share=share))
-        trials = [sc.sample_closed_trial(cfg, n) for n in range(cfg.trajectories)]
+        trials = [study_planar.sample_closed_trial(cfg, n) for n in range(cfg.trajectories)]
         prefers = np.array([t.grasp == 0 for t in trials])
         sd = math.sqrt(share * (1 - share) / prefers.size)
         assert abs(prefers.mean() - share) < 5 * sd
@@ -80,10 +84,10 @@ def test_adaptability_gives_a_geometric_number_of_pauses() -> None:
         assert (k == 1).mean() == pytest.approx(alpha, abs=0.02)
     # Per person: alpha from U(lo, hi), and the default world's people settle at the first.
     cfg = config(500, grasps=Grasps(adaptability=(0.2, 0.4)))
-    alphas = np.array([sc.sample_closed_trial(cfg, n).adaptability for n in range(500)])
+    alphas = np.array([study_planar.sample_closed_trial(cfg, n).adaptability for n in range(500)])
     assert alphas.min() >= 0.2 and alphas.max() <= 0.4 and np.ptp(alphas) > 0.15
-    plain = sc.SimConfig(trajectories=20)
-    assert {sc.sample_closed_trial(plain, n).settle_after for n in range(20)} == {1}
+    plain = study_planar.SimConfig(trajectories=20)
+    assert {study_planar.sample_closed_trial(plain, n).settle_after for n in range(20)} == {1}
 
 
 def test_a_person_keeps_its_way_until_its_own_pause_then_switches() -> None:
@@ -93,7 +97,19 @@ def test_a_person_keeps_its_way_until_its_own_pause_then_switches() -> None:
     n = 9
     target = planar(0.3, 0.4, 0.5)
     it = one_stage(target, n)
-    after = np.array([1, 1, 1, 2, 2, 2, sc.NEVER_SETTLES, sc.NEVER_SETTLES, sc.NEVER_SETTLES])
+    after = np.array(
+        [
+            1,
+            1,
+            1,
+            2,
+            2,
+            2,
+            study_planar.NEVER_SETTLES,
+            study_planar.NEVER_SETTLES,
+            study_planar.NEVER_SETTLES,
+        ]
+    )
     intention = Intention(
         it.targets, it.tolerance, it.mask, it.n_stages, it.turn_within_m,
         one_stage(planar(0.3, 0.4, 0.0), n).targets, np.tile([0.03, 0.35, 1.0], (n, 1, 1)),
@@ -102,7 +118,7 @@ def test_a_person_keeps_its_way_until_its_own_pause_then_switches() -> None:
     op = operators(n, seed=5, intention=intention, patience_s=40.0)
     X = op.start
     op.observe(0.0, X)
-    for k in range(1, round(45.0 / sc.SimConfig().dt_s) + 1):
+    for k in range(1, round(45.0 / study_planar.SimConfig().dt_s) + 1):
         t = k / 30.0
         H = op.hand(t)
         X = HandState(H.position, X.rotation, H.openness)  # follows the position, never turns
@@ -122,8 +138,8 @@ def test_every_assisted_mode_can_succeed_without_noise_and_delay() -> None:
     """No built-in impossibility: without goal noise, delay or depth error, every mode
     succeeds for people who prefer the robot's grasp and for people who prefer the other."""
     cfg = config(60, world=Impairments.unimpaired())
-    res = sc.merge(cfg, [sc.run_chunk(cfg, list(range(cfg.trajectories)))])
-    summary = sc.disagreement_summary(res)
+    res = results.merge(cfg, [batch.run_chunk(cfg, list(range(cfg.trajectories)))])
+    summary = study_summary.disagreement_summary(res)
     assert summary["people"]["prefers_robot_grasp"] > 15
     assert summary["people"]["prefers_other_grasp"] > 15
     for mode in (Mode.S, Mode.DS, Mode.SCALAR, Mode.MANUAL):
@@ -136,8 +152,8 @@ def test_every_assisted_mode_can_succeed_without_noise_and_delay() -> None:
 
 def test_the_summary_separates_the_groups_and_where_they_ended() -> None:
     cfg = config(40, modes=(Mode.S, Mode.DS, Mode.MANUAL, Mode.AUTONOMOUS))
-    res = sc.merge(cfg, [sc.run_chunk(cfg, list(range(cfg.trajectories)))])
-    out = sc.summarise(res)
+    res = results.merge(cfg, [batch.run_chunk(cfg, list(range(cfg.trajectories)))])
+    out = study_summary.summarise(res)
     d = out["disagreement"]
     assert d["robot_grasp"] == "top" and out["config"]["grasps"]["robot_grasp"] == "top"
     people = d["people"]["prefers_robot_grasp"] + d["people"]["prefers_other_grasp"]
@@ -153,8 +169,8 @@ def test_the_summary_separates_the_groups_and_where_they_ended() -> None:
 
 
 def test_the_default_world_has_no_disagreement_block() -> None:
-    cfg = sc.SimConfig(trajectories=4, max_paths=0, modes=(Mode.S, Mode.DS))
-    out = sc.summarise(sc.merge(cfg, [sc.run_chunk(cfg, [0, 1, 2, 3])]))
+    cfg = study_planar.SimConfig(trajectories=4, max_paths=0, modes=(Mode.S, Mode.DS))
+    out = study_summary.summarise(results.merge(cfg, [batch.run_chunk(cfg, [0, 1, 2, 3])]))
     assert "disagreement" not in out and "grasps" not in out["config"]
 
 

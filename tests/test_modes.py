@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from dsteleop.app.study.core import SimConfig, all_modes, run_chunk
+from dsteleop.app.study.batch import run_chunk
+from dsteleop.app.study.planar import SimConfig, all_modes
 from dsteleop.app.tune.space import default_space, field_kinds, parse_space
 from dsteleop.app.tune.trial import StudyBatch, study_task
 from dsteleop.app.viewer.server import mode_names

@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 
 from dsteleop.arbitration.se3 import HandState, so3_exp, so3_log
 from dsteleop.errors import DsteleopError
-from dsteleop.robot.arm import RobotConfig, RobotState
+from dsteleop.robot.arm import BulletArmState, RobotConfig
 from dsteleop.robot.env import R_PALM_DOWN, EnvConfig, KitchenEnv
 from dsteleop.robot.hand_urdf import (
     ASSET_PATH,
@@ -38,7 +38,7 @@ def env() -> Iterator[KitchenEnv]:
     e.close()
 
 
-def _hold(env: KitchenEnv, p: Array, R: Array, g: Array, ticks: int) -> RobotState:
+def _hold(env: KitchenEnv, p: Array, R: Array, g: Array, ticks: int) -> BulletArmState:
     state = env.state()
     for _ in range(ticks):
         env.set_target(p, R, g)
@@ -46,7 +46,7 @@ def _hold(env: KitchenEnv, p: Array, R: Array, g: Array, ticks: int) -> RobotSta
     return state
 
 
-def _pose_error(state: RobotState, p: Array, R: Array) -> tuple[float, float]:
+def _pose_error(state: BulletArmState, p: Array, R: Array) -> tuple[float, float]:
     e_p = float(np.linalg.norm(state.palm.position - p))
     e_r = float(np.linalg.norm(so3_log(R @ state.palm.rotation.T)))
     return e_p, e_r

@@ -16,7 +16,8 @@ from numpy.typing import NDArray
 from dsteleop.app.cli.main import main
 from dsteleop.app.operator.world import Impairments
 from dsteleop.app.session.trace import Trace
-from dsteleop.app.study import core as sc
+from dsteleop.app.study import batch, planar, results
+from dsteleop.app.study import summary as study_summary
 from dsteleop.arbitration import ArbitrationInput, HandState, Mode, make_arbiter
 
 
@@ -31,27 +32,27 @@ def test_success_region_radius_and_heading() -> None:
     handle, normal, R, delta = (0.3, 0.4), math.pi / 4, 0.03, 0.35
     xy = np.array([[0.3, 0.4], [0.3 + 0.029, 0.4], [0.3 + 0.031, 0.4], [0.3, 0.4], [0.3, 0.4]])
     heading = np.array([normal, normal, normal, normal + 0.34, normal - 0.36])
-    got = sc.in_success_region(xy, heading, handle, normal, R, delta)
+    got = planar.in_success_region(xy, heading, handle, normal, R, delta)
     assert got.tolist() == [True, True, False, True, False]
 
 
 def test_success_heading_wraps_around() -> None:
     # A heading a full turn away is the same heading; pi away is not.
     heading = np.array([0.1 + 2 * np.pi, -0.1 - 2 * np.pi, 0.1 + np.pi])
-    ok = sc.in_success_region(np.zeros((3, 2)), heading, (0.0, 0.0), 0.0, 0.01, 0.2)
+    ok = planar.in_success_region(np.zeros((3, 2)), heading, (0.0, 0.0), 0.0, 0.01, 0.2)
     assert ok.tolist() == [True, True, False]
     np.testing.assert_allclose(
-        sc.wrap(np.array([3 * np.pi / 2, -3 * np.pi / 2])), [-np.pi / 2, np.pi / 2]
+        planar.wrap(np.array([3 * np.pi / 2, -3 * np.pi / 2])), [-np.pi / 2, np.pi / 2]
     )
 
 
 def test_planar_state_round_trip() -> None:
     h = np.array([-3.0, -1.0, 0.0, 0.7, 3.1])
-    X = sc.planar_state(np.arange(5.0), np.ones(5), h)
+    X = planar.planar_state(np.arange(5.0), np.ones(5), h)
     assert (
         X.position.shape == (5, 3) and X.rotation.shape == (5, 3, 3) and X.openness.shape == (5, 0)
     )
-    np.testing.assert_allclose(sc.heading_of(X.rotation), h, atol=1e-12)
+    np.testing.assert_allclose(planar.heading_of(X.rotation), h, atol=1e-12)
     assert np.all(X.position[:, 2] == 0.0)
 
 
@@ -59,13 +60,13 @@ def test_success_and_time_of_open_loop_trials() -> None:
     # Manual mode reproduces the hand exactly (F = 0 fingers, z/roll/pitch fixed): the
     # operator reaches the handle, so manual succeeds; its cosine distance is 0 and its
     # agreement 1. Autonomous ends at the robot's noisy goal.
-    cfg = sc.SimConfig(trajectories=12, seed=5, operator="side")
-    res = sc.merge(cfg, [sc.run_chunk(cfg, range(12))])
+    cfg = planar.SimConfig(trajectories=12, seed=5, operator="side")
+    res = results.merge(cfg, [batch.run_chunk(cfg, range(12))])
     man = res.modes["manual"]
     assert man.success.mean() >= 11 / 12
     np.testing.assert_allclose(man.cosine_mean, 0.0, atol=1e-12)
     np.testing.assert_array_equal(man.agreement, 1.0)
-    goals = np.stack([sc.sample_trial(cfg, i).robot_goal for i in range(12)])
+    goals = np.stack([planar.sample_trial(cfg, i).robot_goal for i in range(12)])
     auto = res.modes["autonomous"]
     np.testing.assert_allclose(auto.final[:, :2], goals[:, :2], atol=0.01)
     inside = np.linalg.norm(goals[:, :2] - cfg.handle_xy_m, axis=1) <= cfg.success_radius_m
@@ -89,33 +90,36 @@ def test_closed_loop_trials_end_when_the_operator_is_done() -> None:
     sees it), or gives up at its patience (autonomous with a goal 6 cm off: the robot cannot
     be moved and is outside even the task's tolerance it settles for). The robot stays in its
     plane."""
-    cfg = sc.SimConfig(trajectories=12, seed=5, modes=(Mode.MANUAL,), world=CLEAR, attempts=1)
-    res = sc.merge(cfg, [sc.run_chunk(cfg, range(12))])
+    cfg = planar.SimConfig(trajectories=12, seed=5, modes=(Mode.MANUAL,), world=CLEAR, attempts=1)
+    res = results.merge(cfg, [batch.run_chunk(cfg, range(12))])
     man = res.modes["manual"]
     assert man.committed.all() and not man.gave_up.any() and man.success.mean() >= 11 / 12
     np.testing.assert_allclose(man.cosine_mean, 0.0, atol=1e-12)
-    goals = np.stack([sc.sample_closed_trial(cfg, i).operator_goal for i in range(12)])
+    goals = np.stack([planar.sample_closed_trial(cfg, i).operator_goal for i in range(12)])
     err = np.linalg.norm(man.final[:, :2] - goals[:, :2], axis=1)
     # Within its tolerance as it sees it (it misjudges the robot by a few mm).
     assert np.all(err <= cfg.operator_tolerance_m + 0.012)
-    assert np.all(np.abs(sc.wrap(man.final[:, 2] - goals[:, 2])) <= cfg.operator_tolerance_rad)
+    assert np.all(np.abs(planar.wrap(man.final[:, 2] - goals[:, 2])) <= cfg.operator_tolerance_rad)
     patience = cfg.operator_profile.patience_s
     assert np.all(man.time_s < patience)
     np.testing.assert_allclose(man.time_s, (man.lengths - 1) * cfg.dt_s)
     far = dataclasses.replace(
         cfg, modes=(Mode.AUTONOMOUS,), world=CLEAR.replace(goal_sigma_m=0.06), trajectories=6
     )
-    res = sc.merge(far, [sc.run_chunk(far, range(6))])
+    res = results.merge(far, [batch.run_chunk(far, range(6))])
     auto = res.modes["autonomous"]
     off = np.array(
-        [np.linalg.norm(sc.robot_goal(far, i, 0)[:2] - far.handle_xy_m) > 0.045 for i in range(6)]
+        [
+            np.linalg.norm(planar.robot_goal(far, i, 0)[:2] - far.handle_xy_m) > 0.045
+            for i in range(6)
+        ]
     )
     assert off.sum() >= 2
     assert auto.gave_up[off].all() and not auto.success[off].any()
     np.testing.assert_allclose(auto.time_s[off], patience, atol=2 * cfg.dt_s)
     cfg = dataclasses.replace(cfg, modes=(Mode.MANUAL, Mode.AUTONOMOUS))
     # One trajectory alone: z, roll and pitch never move (the task is planar).
-    ex = sc.example(cfg, 3, Mode.MANUAL)
+    ex = batch.example(cfg, 3, Mode.MANUAL)
     X = ex.trace.step.X_next
     np.testing.assert_allclose(X.position[:, 2], 0.0, atol=1e-12)
     np.testing.assert_allclose(X.rotation[:, 2, 2], 1.0, atol=1e-12)
@@ -125,9 +129,9 @@ def test_results_do_not_depend_on_chunking() -> None:
     # Per-row results agree to the last few bits whatever the batch: numpy's SIMD maths may
     # round an element differently depending on its position in an array, so bit-identity
     # across chunkings is not promised (it is for the same chunking: see the next tests).
-    cfg = sc.SimConfig(trajectories=10, seed=2, modes=(Mode.S, Mode.DS))
-    whole = sc.merge(cfg, [sc.run_chunk(cfg, range(10))])
-    parts = sc.merge(cfg, [sc.run_chunk(cfg, range(6, 10)), sc.run_chunk(cfg, range(6))])
+    cfg = planar.SimConfig(trajectories=10, seed=2, modes=(Mode.S, Mode.DS))
+    whole = results.merge(cfg, [batch.run_chunk(cfg, range(10))])
+    parts = results.merge(cfg, [batch.run_chunk(cfg, range(6, 10)), batch.run_chunk(cfg, range(6))])
     for m in ("S", "DS"):
         a, b = whole.modes[m], parts.modes[m]
         np.testing.assert_allclose(a.cosine_mean, b.cosine_mean, rtol=0, atol=1e-12)
@@ -143,11 +147,11 @@ def test_trace_of_one_trajectory_is_a_session_trace_matching_the_batch(operator:
     # in the batch: L states give L - 1 ticks, each arbitrated, ending at the batch's final
     # pose; its cosine distance and agreement are the batch's. A closed-loop operator is
     # the same person alone and in the batch (its draws come from its own generator).
-    cfg = sc.SimConfig(trajectories=4, seed=3, modes=(Mode.S, Mode.DS), operator=operator)  # type: ignore[arg-type]
-    res = sc.merge(cfg, [sc.run_chunk(cfg, range(4))])
+    cfg = planar.SimConfig(trajectories=4, seed=3, modes=(Mode.S, Mode.DS), operator=operator)  # type: ignore[arg-type]
+    res = results.merge(cfg, [batch.run_chunk(cfg, range(4))])
     row = 2 * cfg.runs  # trajectory 2's first run
     for mode in cfg.modes:
-        tr = sc.trace(cfg, 2, mode)
+        tr = batch.trace(cfg, 2, mode)
         assert isinstance(tr, Trace) and tr.mode is mode
         L = int(res.modes[mode.value].lengths[row])
         assert len(tr) == L - 1 and tr.arbitrated.all()
@@ -156,8 +160,8 @@ def test_trace_of_one_trajectory_is_a_session_trace_matching_the_batch(operator:
         np.testing.assert_allclose(tr.t_s, np.arange(1, L) * cfg.dt_s)
         final = res.modes[mode.value].final[row]
         np.testing.assert_allclose(tr.p_robot[-1, :2], final[:2], atol=1e-9)
-        heading = sc.heading_of(tr.step.X_next.rotation[-1])
-        assert float(sc.wrap(np.array(heading - final[2]))) == pytest.approx(0.0, abs=1e-9)
+        heading = planar.heading_of(tr.step.X_next.rotation[-1])
+        assert float(planar.wrap(np.array(heading - final[2]))) == pytest.approx(0.0, abs=1e-9)
         U_h, U_o = tr.step.U_human, tr.step.U_out
         assert np.all(np.isfinite(U_h)) and np.all(np.isfinite(U_o))
         agree = np.einsum("td,td->t", U_h, U_o) > 0
@@ -169,15 +173,15 @@ def test_trace_of_one_trajectory_is_a_session_trace_matching_the_batch(operator:
 
 
 def test_trials_are_paired_and_seeded() -> None:
-    cfg = sc.SimConfig(trajectories=3, seed=9, operator="side")
-    a, b = sc.sample_trial(cfg, 1), sc.sample_trial(cfg, 1)
+    cfg = planar.SimConfig(trajectories=3, seed=9, operator="side")
+    a, b = planar.sample_trial(cfg, 1), planar.sample_trial(cfg, 1)
     np.testing.assert_array_equal(a.hand.position, b.hand.position)
     np.testing.assert_array_equal(a.robot_goal, b.robot_goal)
-    c = sc.sample_trial(cfg, 2)
+    c = planar.sample_trial(cfg, 2)
     assert not np.array_equal(a.robot_goal, c.robot_goal)
     # The side operator prefers a heading below the normal; the aligned one the normal.
     assert a.operator_goal[2] < cfg.handle_normal_rad - cfg.side_offset_rad[0] + 1e-12
-    al = sc.sample_trial(sc.SimConfig(trajectories=3, seed=9, operator="aligned"), 1)
+    al = planar.sample_trial(planar.SimConfig(trajectories=3, seed=9, operator="aligned"), 1)
     assert al.operator_goal[2] == cfg.handle_normal_rad
 
 
@@ -257,20 +261,20 @@ def test_outputs_and_figures(tmp_path: Path, capsys: pytest.CaptureFixture[str])
 def test_s_forces_x_while_the_operator_moves_along_y_only() -> None:
     """The paper's Fig. 5 remark, from the open-loop operator as in the paper: while it moves
     along y only, S's output adds far more x motion than DS's (paired over trajectories)."""
-    cfg = sc.SimConfig(trajectories=120, seed=11, modes=(Mode.S, Mode.DS), operator="side")
-    res = sc.merge(cfg, [sc.run_chunk(cfg, range(120))])
-    fig = sc.fig5_remark(res)
+    cfg = planar.SimConfig(trajectories=120, seed=11, modes=(Mode.S, Mode.DS), operator="side")
+    res = results.merge(cfg, [batch.run_chunk(cfg, range(120))])
+    fig = study_summary.fig5_remark(res)
     assert fig["S"]["n"] >= 60
     assert fig["DS"]["mean"] < 0.7 * fig["S"]["mean"]
     assert fig["paired_t_S_minus_DS"]["t"] > 0 and fig["paired_t_S_minus_DS"]["p_value"] < 1e-6
     # DS keeps alpha_x low while the operator is not moving in x (Fig. 6): over the ticks
     # where the operator moves along y only, mean alpha_x of DS is below S's.
-    k = sc.first_lead_index(cfg)
+    k = planar.first_lead_index(cfg)
     alphas = {}
     for mode in (Mode.S, Mode.DS):
-        tr = sc.trace(cfg, k, mode)
+        tr = batch.trace(cfg, k, mode)
         vx, vy = np.abs(tr.step.U_human[:, 0]), np.abs(tr.step.U_human[:, 1])
-        y_only = (vy > sc.Y_ONLY_MPS) & (vx < 0.1 * vy)
+        y_only = (vy > results.Y_ONLY_MPS) & (vx < 0.1 * vy)
         alphas[mode.value] = float(tr.step.alpha[y_only, 0].mean())
     assert alphas["DS"] < alphas["S"]
 
@@ -283,10 +287,12 @@ def test_under_ds_the_operator_corrects_the_robots_goal_error() -> None:
     ends nearer the handle than S on most trajectories whose goal is off, and succeeds more."""
     n = 80
     world = CLEAR.replace(goal_sigma_m=0.02)
-    cfg = sc.SimConfig(trajectories=n, seed=21, modes=(Mode.S, Mode.DS), world=world, attempts=1)
-    res = sc.merge(cfg, [sc.run_chunk(cfg, range(n))])
+    cfg = planar.SimConfig(
+        trajectories=n, seed=21, modes=(Mode.S, Mode.DS), world=world, attempts=1
+    )
+    res = results.merge(cfg, [batch.run_chunk(cfg, range(n))])
     S, DS = res.modes["S"], res.modes["DS"]
-    goals = np.stack([sc.robot_goal(cfg, i, 0) for i in range(n)])
+    goals = np.stack([planar.robot_goal(cfg, i, 0) for i in range(n)])
     handle = np.asarray(cfg.handle_xy_m)
     d_S = np.linalg.norm(S.final[:, :2] - handle, axis=1)
     d_DS = np.linalg.norm(DS.final[:, :2] - handle, axis=1)
@@ -311,8 +317,8 @@ def test_every_mode_satisfies_the_operator_without_noise_or_delay() -> None:
     error, the operator commits (and succeeds) in every mode, S and autonomous included (it
     settles for the task's tolerance where the robot resists its own heading)."""
     n = 100
-    cfg = sc.SimConfig(trajectories=n, seed=3, world=CLEAR, attempts=1)
-    res = sc.merge(cfg, [sc.run_chunk(cfg, range(n))])
+    cfg = planar.SimConfig(trajectories=n, seed=3, world=CLEAR, attempts=1)
+    res = results.merge(cfg, [batch.run_chunk(cfg, range(n))])
     for name, r in res.modes.items():
         assert r.committed.mean() >= 0.95, name
         assert r.success.mean() >= 0.95, name
@@ -326,11 +332,11 @@ def test_success_is_judged_on_the_committed_settled_pose() -> None:
     drifts towards its noisy goal): some snapshot successes fail when judged settled; a
     trial that ends by giving up never succeeds."""
     world = CLEAR.replace(goal_sigma_m=0.04)
-    base = sc.SimConfig(trajectories=60, seed=4, modes=(Mode.DS,), world=world, attempts=1)
+    base = planar.SimConfig(trajectories=60, seed=4, modes=(Mode.DS,), world=world, attempts=1)
     snap = dataclasses.replace(base, grasp_s=0.0)
     settled = dataclasses.replace(base, grasp_s=3.0)
-    a = sc.merge(snap, [sc.run_chunk(snap, range(60))]).modes["DS"]
-    b = sc.merge(settled, [sc.run_chunk(settled, range(60))]).modes["DS"]
+    a = results.merge(snap, [batch.run_chunk(snap, range(60))]).modes["DS"]
+    b = results.merge(settled, [batch.run_chunk(settled, range(60))]).modes["DS"]
     np.testing.assert_array_equal(a.committed, b.committed)  # the same people, the same commits
     np.testing.assert_allclose(b.time_s[b.committed] - a.time_s[a.committed], 3.0, atol=0.05)
     assert np.sum(a.success & ~b.success) >= 3
@@ -343,10 +349,10 @@ def test_the_delay_reaches_both_paths() -> None:
     reaches the robot delay_s late)."""
 
     def first_motion(delay: float) -> float:
-        cfg = sc.SimConfig(
+        cfg = planar.SimConfig(
             trajectories=1, seed=6, modes=(Mode.MANUAL,), world=CLEAR.replace(delay_s=delay)
         )
-        tr = sc.trace(cfg, 0, Mode.MANUAL)
+        tr = batch.trace(cfg, 0, Mode.MANUAL)
         moving = np.linalg.norm(tr.step.U_out, axis=-1) > 1e-9
         return float(tr.t_s[np.argmax(moving)])
 
@@ -356,14 +362,14 @@ def test_the_delay_reaches_both_paths() -> None:
 def test_runs_feed_the_history_term_from_the_second_run() -> None:
     """Each person makes `attempts` runs in each mode; eq (6)'s history term of a run is the
     mean direction of its previous runs: zero in the first, non-zero from the second."""
-    cfg = sc.SimConfig(trajectories=8, seed=2, modes=(Mode.S, Mode.DS), attempts=3)
-    res = sc.merge(cfg, [sc.run_chunk(cfg, range(8))])
+    cfg = planar.SimConfig(trajectories=8, seed=2, modes=(Mode.S, Mode.DS), attempts=3)
+    res = results.merge(cfg, [batch.run_chunk(cfg, range(8))])
     for r in res.modes.values():
         assert r.success.size == 24
         np.testing.assert_array_equal(r.attempt, np.tile([0, 1, 2], 8))
         assert np.all(r.history_norm[r.attempt == 0] == 0.0)
         assert np.all(r.history_norm[r.attempt > 0] > 0.5)
-    s = sc.summarise(res)
+    s = study_summary.summarise(res)
     assert s["runs"] == 3 and len(s["modes"]["DS"]["runs"]) == 3
     assert s["modes"]["DS"]["runs"][0]["history_term_l1"] == 0.0
 
@@ -374,7 +380,9 @@ def test_a_history_term_per_row_is_each_rows_own() -> None:
     rng = np.random.default_rng(0)
 
     def state() -> HandState:
-        return sc.planar_state(rng.uniform(0, 0.3, 2), rng.uniform(0, 0.4, 2), rng.uniform(0, 1, 2))
+        return planar.planar_state(
+            rng.uniform(0, 0.3, 2), rng.uniform(0, 0.4, 2), rng.uniform(0, 1, 2)
+        )
 
     H, Hp, Hs, X, Xp, Xs, G = (state() for _ in range(7))
     h = np.array([[0.5, -0.5, 0, 0, 0, 1.0], [-0.7, 0.7, 0, 0, 0, -1.0]])
@@ -461,9 +469,9 @@ def test_summary_reports_the_papers_metrics_and_labels_the_others() -> None:
     mode's hand against its own robot; McNemar for paired success."""
     from dsteleop.arbitration import metrics
 
-    cfg = sc.SimConfig(trajectories=10, seed=2, modes=(Mode.S, Mode.DS, Mode.MANUAL))
-    res = sc.merge(cfg, [sc.run_chunk(cfg, range(10))])
-    s = sc.summarise(res)
+    cfg = planar.SimConfig(trajectories=10, seed=2, modes=(Mode.S, Mode.DS, Mode.MANUAL))
+    res = results.merge(cfg, [batch.run_chunk(cfg, range(10))])
+    s = study_summary.summarise(res)
     for name, r in res.modes.items():
         m = s["modes"][name]
         cos = m["cosine_distance"]
@@ -500,25 +508,25 @@ def test_tape_scatters_each_block_of_ticks_to_its_rows() -> None:
     # The rows shrink as trials end (every _CHECK_TICKS ticks); each block of buffered ticks
     # must land on the rows it was of, and the ticks that belong to a trial follow from the
     # trials' lengths.
-    B = sc._CHECK_TICKS
+    B = batch._CHECK_TICKS
     T, J = 3 * B + 4, 7
     epochs = [np.arange(J), np.array([0, 2, 3, 6]), np.array([2, 6])]
     rng = np.random.default_rng(3)
     want_robot, want_hand = np.full((T, J, 3), np.nan), np.full((T, J, 3), np.nan)
     want_uh, want_uo = np.full((T - 1, J, 6), np.nan), np.full((T - 1, J, 6), np.nan)
-    tape = sc._Tape(T, J).start(T, J)
+    tape = batch._Tape(T, J).start(T, J)
     for k in range(T - 1):
         if k % B == 0 and k > 0:
             tape.flush(epochs[k // B - 1])
         rows = epochs[min(k // B, len(epochs) - 1)]
         n = rows.size
-        X = sc.planar_state(*rng.uniform(-3.0, 3.0, (3, n)))
-        H = sc.planar_state(*rng.uniform(-3.0, 3.0, (3, n)))
+        X = planar.planar_state(*rng.uniform(-3.0, 3.0, (3, n)))
+        H = planar.planar_state(*rng.uniform(-3.0, 3.0, (3, n)))
         U_h, U_o = rng.standard_normal((n, 6)), rng.standard_normal((n, 6))
         tape.put(k, X, H, U_h, U_o)
         for want, S in ((want_robot, X), (want_hand, H)):
             want[k + 1, rows, :2] = S.position[:, :2]
-            want[k + 1, rows, 2] = sc.heading_of(S.rotation)
+            want[k + 1, rows, 2] = planar.heading_of(S.rotation)
         want_uh[k, rows], want_uo[k, rows] = U_h, U_o
     tape.flush(epochs[-1])
     for got, want in (

@@ -16,8 +16,7 @@ from scipy import stats
 
 from dsteleop.app.cli.main import main
 from dsteleop.app.operator.world import Impairments
-from dsteleop.app.study import core as sc
-from dsteleop.app.study import sweep
+from dsteleop.app.study import planar, sweep
 from dsteleop.arbitration import Mode
 
 # --- the grid ---------------------------------------------------------------------------------
@@ -46,15 +45,15 @@ def test_parse_grid_overrides_given_axes_only() -> None:
 
 
 def test_with_world_sets_the_cell_and_keeps_the_rest() -> None:
-    cfg = sc.SimConfig(trajectories=3, world=Impairments(lateral_sigma_m=0.005))
+    cfg = planar.SimConfig(trajectories=3, world=Impairments(lateral_sigma_m=0.005))
     c = sweep.with_world(cfg, (0.04, 0.1, 0.003))
     assert c.world == Impairments(
         goal_sigma_m=0.04, delay_s=0.1, depth_sigma_m=0.003, lateral_sigma_m=0.005
     )
     # The robot's goal noise follows the goal axis (the study's draws).
     i = 1
-    g0 = sc.sample_closed_trial(sweep.with_world(cfg, (0.0, 0.0, 0.0)), i).robot_goal
-    g4 = sc.sample_closed_trial(c, i).robot_goal
+    g0 = planar.sample_closed_trial(sweep.with_world(cfg, (0.0, 0.0, 0.0)), i).robot_goal
+    g4 = planar.sample_closed_trial(c, i).robot_goal
     np.testing.assert_allclose(g0[:2], cfg.handle_xy_m)
     assert np.linalg.norm(g4[:2] - np.asarray(cfg.handle_xy_m)) > 0
 
@@ -190,7 +189,7 @@ def test_sweep_on_a_local_two_worker_cluster_writes_resumes_and_pairs(
         assert (x["mcnemar"]["first_only"], x["mcnemar"]["second_only"]) == (b, k)
     # The goal axis works: with no goal noise S parks the robot on the handle and succeeds
     # (nearly) every run; with 4 cm per axis it misses most.
-    runs = 6 * sc.SimConfig().attempts  # each of the 6 people makes `attempts` runs
+    runs = 6 * planar.SimConfig().attempts  # each of the 6 people makes `attempts` runs
     for delay in (0.0, 0.15):
         clean = cells[(0.0, delay, 0.0)]["modes"]["S"]["successes"]
         noisy = cells[(0.04, delay, 0.0)]["modes"]["S"]["successes"]
@@ -201,7 +200,7 @@ def test_sweep_on_a_local_two_worker_cluster_writes_resumes_and_pairs(
     m4 = raw["goal0.04_delay0_depth0"]["modes"]["manual"]
     assert m0["success"] == m4["success"]
     np.testing.assert_allclose(m0["time_s"], m4["time_s"], rtol=0, atol=1e-9)
-    cfg = sc.SimConfig(trajectories=6, seed=4, modes=(Mode.S, Mode.DS, Mode.MANUAL))
+    cfg = planar.SimConfig(trajectories=6, seed=4, modes=(Mode.S, Mode.DS, Mode.MANUAL))
     alone = sweep.cell_task(cfg, (0.04, 0.0, 0.0))
     for mode in ("S", "DS", "manual"):
         got = raw["goal0.04_delay0_depth0"]["modes"][mode]
@@ -243,9 +242,9 @@ def test_the_sweep_module_and_a_cell_leave_ray_unloaded() -> None:
     code = (
         "import sys\n"
         "import dsteleop.app.cli.sim\n"
-        "from dsteleop.app.study import sweep, core\n"
+        "from dsteleop.app.study import sweep, planar\n"
         "from dsteleop.arbitration import Mode\n"
-        "cfg = core.SimConfig(trajectories=2, modes=(Mode.S, Mode.DS))\n"
+        "cfg = planar.SimConfig(trajectories=2, modes=(Mode.S, Mode.DS))\n"
         "r = sweep.cell_task(cfg, (0.0, 0.0, 0.0))\n"
         "print(sorted(r['modes']), 'ray' in sys.modules)\n"
     )
@@ -299,7 +298,7 @@ def test_sweep_on_a_cluster_the_user_started_runs_and_resumes(tmp_path: Path) ->
 
 def test_axes_design_varies_one_impairment_at_a_time_from_the_worlds_centre() -> None:
     g = sweep.default_grid()
-    mid = sweep.centre(sc.SimConfig())
+    mid = sweep.centre(planar.SimConfig())
     w = Impairments()
     assert mid == (w.goal_sigma_m, w.delay_s, w.depth_sigma_m)
     cells = sweep.design_cells(g, "axes", mid)
@@ -313,7 +312,7 @@ def test_axes_design_varies_one_impairment_at_a_time_from_the_worlds_centre() ->
     assert cells == [c for c in g.cells() if c in cells]
     assert sweep.design_cells(g, "grid", mid) == g.cells()
     # The centre follows the world the study is given.
-    moved = sweep.centre(sc.SimConfig(world=Impairments(delay_s=0.0)))
+    moved = sweep.centre(planar.SimConfig(world=Impairments(delay_s=0.0)))
     assert moved[1] == 0.0 and len(sweep.design_cells(g, "axes", moved)) == 7
 
 
@@ -384,7 +383,7 @@ DOCS_TUNED = Path(__file__).resolve().parent / "golden" / "tune-best"
 def test_tune_sweep_tunes_the_cells_the_sweep_runs_with_the_cells_world() -> None:
     ts = _tune_sweep()
     g = sweep.default_grid()
-    assert ts.cells("axes") == sweep.design_cells(g, "axes", sweep.centre(sc.SimConfig()))
+    assert ts.cells("axes") == sweep.design_cells(g, "axes", sweep.centre(planar.SimConfig()))
     assert ts.cells("grid") == g.cells() and len(ts.cells("axes")) == 7
     budget = ["--trials-per-param", "4", "--widen-edges", "2"]
     cmd = ts.tune_command((0.04, 0.2, 0.0), "scalar", Path("o/x"), budget, 200, 2)
@@ -537,7 +536,7 @@ def test_axes_sweep_runs_each_cell_with_its_own_configuration(
     tuned = raw["goal0.02_delay0.2_depth0.015"]["modes"]
     assert not np.allclose(tuned["scalar"]["time_s"], tuned["S"]["time_s"])
     # A cell run alone with its file's arbitration gives the sweep's results.
-    cfg = sc.SimConfig(
+    cfg = planar.SimConfig(
         trajectories=6, seed=4, modes=(Mode.S, Mode.DS, Mode.SCALAR),
         arbitration=ArbitrationConfig.from_dict(both["arbitration"]),
     )  # fmt: skip

@@ -22,7 +22,7 @@ import pytest
 
 from dsteleop.app.cli.main import main
 from dsteleop.app.cli.options import add_loop_options, loop_options
-from dsteleop.app.study.core import SimConfig
+from dsteleop.app.study.planar import SimConfig
 from dsteleop.app.tune import driver, edges
 from dsteleop.app.tune.objective import Objective, key
 from dsteleop.app.tune.space import DEFAULT_SPACE, parse_dimension, parse_space

@@ -14,8 +14,8 @@ import pytest
 
 from dsteleop.app.cli.options import config_from_file
 from dsteleop.app.cli.world_options import add_world_arguments, world_overrides
-from dsteleop.app.study import core as sc
-from dsteleop.app.study import sweep
+from dsteleop.app.study import batch, planar, results, sweep
+from dsteleop.app.study import summary as study_summary
 from dsteleop.arbitration import Mode
 
 TUNED = Path(__file__).resolve().parents[1] / "docs" / "tuned"
@@ -49,7 +49,7 @@ def test_every_shipped_configuration_is_a_config_file_with_both_modes_tuned() ->
 
 @pytest.mark.parametrize("folder", CELL_FOLDERS)
 def test_the_cell_folders_cover_the_axes_design(folder: str) -> None:
-    cells = sweep.design_cells(sweep.default_grid(), "axes", sweep.centre(sc.SimConfig()))
+    cells = sweep.design_cells(sweep.default_grid(), "axes", sweep.centre(planar.SimConfig()))
     names = {sweep.cell_name(c) for c in cells}
     assert {p.stem for p in (TUNED / folder).glob("*.json")} - {"disagreement"} == names
 
@@ -69,7 +69,7 @@ def test_the_tuned_disagreement_headline_holds_on_held_out_people() -> None:
     0.383 over 1000 people); 60 people of seed 1 with wide margins."""
     world = _disagreement_world()
     arb, _ = config_from_file(TUNED / "equal-count" / "disagreement.json", [])
-    cfg = sc.SimConfig(
+    cfg = planar.SimConfig(
         trajectories=60,
         seed=1,
         max_paths=0,
@@ -77,8 +77,8 @@ def test_the_tuned_disagreement_headline_holds_on_held_out_people() -> None:
         arbitration=arb,
         **world,
     )
-    res = sc.merge(cfg, [sc.run_chunk(cfg, list(range(cfg.trajectories)))])
-    d = sc.disagreement_summary(res)["modes"]
+    res = results.merge(cfg, [batch.run_chunk(cfg, list(range(cfg.trajectories)))])
+    d = study_summary.disagreement_summary(res)["modes"]
     ds, s = d["DS"]["prefers_other_grasp"], d["S"]["prefers_other_grasp"]
     assert ds["success_rate"]["estimate"] >= 0.9
     assert ds["successes_in"]["side"] >= 0.9 * ds["successes_in"]["top"] + 1

@@ -26,7 +26,7 @@ log = logging.getLogger(__name__)
 
 def run(quick: bool) -> dict[str, Any]:
     from dsteleop.app.bench import machine
-    from dsteleop.app.study.core import SimConfig
+    from dsteleop.app.study.planar import SimConfig
     from dsteleop.app.study.sweep import AXES, Grid, default_levels, run_sweep
     from dsteleop.app.tune.cluster import RayExecutor
 

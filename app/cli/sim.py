@@ -10,7 +10,8 @@ one JSON object on stdout. With `--sweep [AXIS=V1,V2,...]...` it runs every mode
 of the operator's world instead (`app/study/sweep.py`: Ray tasks on a local cluster or
 `--address`, `--resume`; `--sweep-design axes` for one impairment at a time, `--cell-configs
 DIR` for a configuration per cell), writing DIR/sweep.json, sweep.md and sweep.png. The computation
-is `app/study/core.py` (pure); this module is the edge: arguments, progress bar, files.
+is app/study/ (pure: the world `planar.py`, the batched simulation `batch.py`, the results
+`results.py`, the summary `summary.py`); this module is the edge: arguments, progress bar, files.
 docs/sim.md describes the study and the operator.
 """
 
@@ -42,7 +43,7 @@ class SimCommand:
     """The `sim` command's settings.
 
     Attributes:
-        study: the study's configuration (`app.study.core.SimConfig`).
+        study: the study's configuration (`app.study.planar.SimConfig`).
         out: the output folder.
         workers: processes.
         figures: draw the PNG figures.
@@ -162,7 +163,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def command(args: argparse.Namespace) -> SimCommand:
     """The command's settings; bad values raise ConfigError with one line."""
-    from dsteleop.app.study.core import SimConfig, all_modes
+    from dsteleop.app.study.planar import SimConfig, all_modes
     from dsteleop.app.study.run import workers_for
 
     modes = (
@@ -280,8 +281,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(cmd: SimCommand, out: Path, t0: float) -> int:
-    from dsteleop.app.study import core, figures, report
+    from dsteleop.app.study import figures, planar, report
+    from dsteleop.app.study.results import StudyResult
     from dsteleop.app.study.run import simulate_all
+    from dsteleop.app.study.summary import summarise
 
     cfg = cmd.study
     if cmd.sweep is not None:
@@ -307,7 +310,7 @@ def _run(cmd: SimCommand, out: Path, t0: float) -> int:
     )
     # Fig. 5/6 and the x-per-y remark come from an operator who does not watch the robot, as
     # in the paper: the run itself for an open-loop operator, else an open-loop companion.
-    fig_cfg = core.figure_study(cfg)
+    fig_cfg = planar.figure_study(cfg)
     # The companion first: its figure is drawn here while the workers run the study.
     studies = [cfg] if fig_cfg is cfg else [fig_cfg, cfg]
     show = sys.stderr.isatty() if cmd.progress is None else bool(cmd.progress)
@@ -317,10 +320,12 @@ def _run(cmd: SimCommand, out: Path, t0: float) -> int:
     def example_figures() -> None:
         # Needs only the configuration: chosen and drawn while the workers simulate.
         nonlocal example
-        example = fig_cfg.example if fig_cfg.example is not None else core.first_lead_index(fig_cfg)
+        example = (
+            fig_cfg.example if fig_cfg.example is not None else planar.first_lead_index(fig_cfg)
+        )
         files.extend(figures.write_example_figures(fig_cfg, example, out))
 
-    def distribution_figure(i: int, res: core.StudyResult) -> None:
+    def distribution_figure(i: int, res: StudyResult) -> None:
         if i == 0:  # the figure study's (the only study, or its companion's)
             files.insert(2, figures.write_distribution_figure(res, out))
 
@@ -331,7 +336,7 @@ def _run(cmd: SimCommand, out: Path, t0: float) -> int:
             distribution_figure if cmd.figures else None,
         )  # fmt: skip
     fig_result, result = results[0], results[-1]
-    summary = core.summarise(result, fig_result)
+    summary = summarise(result, fig_result)
     (out / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False) + "\n")
     (out / "summary.md").write_text(report.markdown(summary))
     printed = report.brief(summary, out, files, time.monotonic() - t0, cmd.workers)

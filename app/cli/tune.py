@@ -263,7 +263,7 @@ def command(args: argparse.Namespace) -> TuneCommand:
         given["study_seed"] = args.study_seed
     overrides = world_overrides(args)
     if overrides:
-        from dsteleop.app.study.core import SimConfig
+        from dsteleop.app.study.planar import SimConfig
         from dsteleop.app.tune.trial import world_of
 
         SimConfig(trajectories=1, **overrides)  # a bad world: one line, now
@@ -349,7 +349,7 @@ def resumed_settings(stored: TuneSettings, given: dict[str, Any]) -> TuneSetting
 
 def _check(settings: TuneSettings) -> TuneSettings:
     """Checks that need the whole settings."""
-    from dsteleop.app.study.core import OPERATOR_FIELDS
+    from dsteleop.app.study.planar import OPERATOR_FIELDS
 
     if settings.batch is not None:
         if settings.batch.trajectories < 1:

@@ -2,7 +2,7 @@
 
 `add_world_arguments` adds the options that say which world the simulated people work in
 (its impairments, docs/operator.md; the task's tolerances; the runs per person), and
-`world_overrides` turns them into fields of `app.study.core.SimConfig`: the options not
+`world_overrides` turns them into fields of `app.study.planar.SimConfig`: the options not
 given keep the study's defaults, so a `tune` run and a `sim` run with the same options score
 the same world.
 """

@@ -43,6 +43,10 @@ what the arbitration takes), in discrete submovements:
                probability alpha at each disagreement, Nikolaidis et al.'s bounded-memory
                adaptation model, settles after a geometric number of pauses, and one that
                never adapts keeps its own way until its patience runs out)
+    change     a person may change its mind once: at its row's `change_at_s`, its targets
+               (and what it would settle for) become `change_targets` (`change_settle`)
+               from its next plan on; a submovement under way is finished (ballistic), the
+               stage it is in is kept (the objects world, docs/operator.md)
     satisfied  within the final stage's tolerance, it holds still; satisfied for `hold_s`
                in a row, it commits (grasps: `committed`) and is done
     patience   after `patience_s` without being done, it gives up and holds still (at
@@ -163,6 +167,12 @@ class Intention:
         settle_tolerance: (N, S, 3) the tolerances it then accepts (the task's).
         settle_after: (N,) the resistance pause at which a row settles (1: its first; a
             count above any trial's pauses: never), or None (every row at its first).
+        change_at_s: (N,) when a row changes its mind [s] (inf: never), or None (no row
+            does): its targets become `change_targets` and its settle targets
+            `change_settle` from then on.
+        change_targets: the targets after the change (N, S), with `change_at_s`.
+        change_settle: the settle targets after the change (N, S), where `settle_targets`
+            is given.
     """
 
     targets: HandState
@@ -173,21 +183,44 @@ class Intention:
     settle_targets: HandState | None = None
     settle_tolerance: Array | None = None
     settle_after: NDArray[np.int64] | None = None
+    change_at_s: Array | None = None
+    change_targets: HandState | None = None
+    change_settle: HandState | None = None
 
     def __post_init__(self) -> None:
         if (self.settle_targets is None) != (self.settle_tolerance is None):
             raise ValueError("settle_targets and settle_tolerance go together")
         if self.settle_after is not None and (self.settle_after < 1).any():
             raise ValueError("settle_after counts pauses from 1")
+        if (self.change_at_s is None) != (self.change_targets is None):
+            raise ValueError("change_at_s and change_targets go together")
+        if (self.change_settle is not None) and (
+            self.change_at_s is None or self.settle_targets is None
+        ):
+            raise ValueError("change_settle needs change_at_s and settle_targets")
 
     def take(self, keep: NDArray[np.bool_]) -> Intention:
         st, tol = self.settle_targets, self.settle_tolerance
+        ct, cs = self.change_targets, self.change_settle
         return Intention(
             self.targets.take(keep), self.tolerance[keep], self.mask[keep], self.n_stages[keep],
             self.turn_within_m[keep], None if st is None else st.take(keep),
             None if tol is None else tol[keep],
             None if self.settle_after is None else self.settle_after[keep],
+            None if self.change_at_s is None else self.change_at_s[keep],
+            None if ct is None else ct.take(keep), None if cs is None else cs.take(keep),
         )  # fmt: skip
+
+    def changed(self, rows: NDArray[np.intp]) -> Intention:
+        """A copy in which rows `rows` have changed their mind: their targets (and settle
+        targets) are the change's."""
+        if self.change_targets is None:
+            return self
+        targets = _put(self.targets, rows, self.change_targets.take(rows))
+        settle = self.settle_targets
+        if settle is not None and self.change_settle is not None:
+            settle = _put(settle, rows, self.change_settle.take(rows))
+        return replace(self, targets=targets, settle_targets=settle)
 
     def of_rows(self, idx: NDArray[np.intp], settled: NDArray[np.bool_]) -> tuple[HandState, Array]:
         """Rows idx's targets (n, S) and tolerances (n, S, 3): the settle ones where
@@ -226,6 +259,7 @@ class _Rows:
     done: NDArray[np.bool_]
     gave_up: NDArray[np.bool_]
     settled: NDArray[np.bool_]
+    changed: NDArray[np.bool_]  # changed its mind (its intention's change applied)
     pauses: NDArray[np.int64]  # resistance pauses so far
     t_done: Array
     delay: Array
@@ -296,6 +330,7 @@ class ClosedLoopOperator:
             done=np.zeros(N, dtype=bool),
             gave_up=np.zeros(N, dtype=bool),
             settled=np.zeros(N, dtype=bool),
+            changed=np.zeros(N, dtype=bool),
             pauses=np.zeros(N, dtype=np.int64),
             t_done=np.full(N, np.nan),
             delay=delay,
@@ -323,6 +358,11 @@ class ClosedLoopOperator:
     def settled(self) -> NDArray[np.bool_]:
         """(N,) settled for the task's goal and tolerance after resistance."""
         return self._rows.settled
+
+    @property
+    def changed(self) -> NDArray[np.bool_]:
+        """(N,) changed its mind (`Intention.change_at_s`)."""
+        return self._rows.changed
 
     @property
     def pauses(self) -> NDArray[np.int64]:
@@ -353,6 +393,12 @@ class ClosedLoopOperator:
         """The hands at time t (N,), after the operators planned what is due."""
         r = self._rows
         self._move(t_s)
+        change = self.intention.change_at_s
+        if change is not None:  # a change of mind: the new targets from the next plan on
+            now = np.flatnonzero(~r.changed & ~r.done & (t_s >= change - 1e-9))
+            if now.size:
+                self.intention = self.intention.changed(now)
+                r.changed[now] = True
         # Out of patience: it stops where its hand is, even mid-movement.
         out = ~r.done & (t_s - self.t0_s >= self.profile.patience_s - 1e-9)
         if out.any():
@@ -577,7 +623,7 @@ def _pick(iv: Interval, g: np.random.Generator) -> float:
 
 
 def _put(X: HandState, idx: NDArray[np.intp], Y: HandState) -> HandState:
-    """X with rows idx replaced by Y's rows (a copy)."""
+    """X with rows idx replaced by Y's rows (a copy; any batch after the rows)."""
     p, R, g = X.position.copy(), X.rotation.copy(), X.openness.copy()
     p[idx], R[idx], g[idx] = Y.position, Y.rotation, Y.openness
     return HandState(p, R, g)

@@ -395,8 +395,8 @@ def divergences(traces: Sequence[Trace]) -> dict[str, Any]:
     """Fig. 8's Jensen-Shannon divergences over replays: per mode, a histogram of the hand's
     and one of the robot's (x, y, z) positions over the arbitrated ticks of every run in that
     mode (`FIG8_BINS` per axis over the box holding every point), then the paper's pairs
-    (`app.study.core.fig8_divergences`)."""
-    from dsteleop.app.study.core import fig8_divergences
+    (`app.study.summary.fig8_divergences`)."""
+    from dsteleop.app.study.summary import fig8_divergences
 
     pts: dict[str, tuple[list[Array], list[Array]]] = {}
     for tr in traces:

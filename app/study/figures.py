@@ -7,7 +7,9 @@ from typing import Any
 
 import numpy as np
 
-from dsteleop.app.study.core import SimConfig, StudyResult, example
+from dsteleop.app.study.batch import example
+from dsteleop.app.study.planar import SimConfig
+from dsteleop.app.study.results import StudyResult
 
 DPI = 100
 FIGURES = ("fig5b_distributions.png", "fig5c_heading.png", "fig5d_xy.png", "fig6_alpha.png")

@@ -19,7 +19,9 @@ from typing import Any
 import numpy as np
 
 from dsteleop.app.progress import Progress
-from dsteleop.app.study.core import ChunkResult, SimConfig, StudyResult, merge, run_chunk
+from dsteleop.app.study.batch import run_chunk
+from dsteleop.app.study.planar import SimConfig
+from dsteleop.app.study.results import ChunkResult, StudyResult, merge
 from dsteleop.arbitration.arbiters import compile_kernels
 from dsteleop.errors import ConfigError
 

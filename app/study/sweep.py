@@ -5,7 +5,7 @@ A cell is one world, `Impairments` with goal noise `goal_sigma_m`, teleoperation
 `delay_s` and single-view depth error `depth_sigma_m` set (the rest as configured). In each
 cell every mode of the study (`SimConfig.modes`) runs on the same trajectories 0 .. N-1 of the
 same seed, so the modes of a cell are paired, exactly as in one `dsteleop sim` run (a cell is
-`core.run_chunk` over its trajectories, in chunks of `CHUNK` for memory). Per cell, with the
+`batch.run_chunk` over its trajectories, in chunks of `CHUNK` for memory). Per cell, with the
 paper's statistics (`dsteleop.arbitration.metrics`):
 
     per mode       success (Laplace estimate, adjusted-Wald 95 % CI), time (geometric mean,
@@ -49,7 +49,10 @@ from typing import Any
 import numpy as np
 
 from dsteleop.app.operator.world import Impairments
-from dsteleop.app.study import core
+from dsteleop.app.study.batch import run_chunk
+from dsteleop.app.study.planar import SimConfig
+from dsteleop.app.study.results import merge
+from dsteleop.app.study.summary import censored
 from dsteleop.arbitration import ArbitrationConfig, metrics
 from dsteleop.errors import ConfigError, InputError
 
@@ -139,7 +142,7 @@ def cell_name(cell: Sequence[float]) -> str:
     return "_".join(f"{axis}{v:g}" for axis, v in zip(AXES, cell, strict=True))
 
 
-def centre(cfg: core.SimConfig) -> tuple[float, ...]:
+def centre(cfg: SimConfig) -> tuple[float, ...]:
     """The world's own (goal, delay, depth) (`cfg.world`): the cell the `axes` design varies
     one impairment at a time from."""
     return tuple(float(getattr(cfg.world, f)) for f in AXES.values())
@@ -191,27 +194,25 @@ class CellConfig:
         return {"file": str(self.path), "sha256": self.sha256}
 
 
-def cell_study(
-    cfg: core.SimConfig, name: str, configs: dict[str, CellConfig] | None
-) -> core.SimConfig:
+def cell_study(cfg: SimConfig, name: str, configs: dict[str, CellConfig] | None) -> SimConfig:
     """The study of the cell `name`: `cfg`, with its own arbitration where `configs` has it."""
     if configs is None:
         return cfg
     return dataclasses.replace(cfg, arbitration=configs[name].arbitration)
 
 
-def with_world(cfg: core.SimConfig, cell: Sequence[float]) -> core.SimConfig:
+def with_world(cfg: SimConfig, cell: Sequence[float]) -> SimConfig:
     """The study `cfg` in the world of `cell` (its other impairments kept)."""
     world = cfg.world.replace(**{f: float(v) for f, v in zip(AXES.values(), cell, strict=True)})
     changes: dict[str, Any] = {"world": world}
-    if "goal_sigma_m" in {f.name for f in dataclasses.fields(core.SimConfig)}:
+    if "goal_sigma_m" in {f.name for f in dataclasses.fields(SimConfig)}:
         # Until the study reads its goal noise from `world` (the impairments' mechanisms),
         # the goal axis sets the field it reads today.
         changes["goal_sigma_m"] = world.goal_sigma_m
     return dataclasses.replace(cfg, **changes)
 
 
-def settings(cfg: core.SimConfig) -> dict[str, Any]:
+def settings(cfg: SimConfig) -> dict[str, Any]:
     """What defines a cell's results besides its world (stored in each cell's file, compared
     on `--resume`)."""
     d = cfg.to_dict()
@@ -223,7 +224,7 @@ def settings(cfg: core.SimConfig) -> dict[str, Any]:
 # --- one cell (a Ray task) --------------------------------------------------------------------
 
 
-def cell_task(cfg: core.SimConfig, cell: Sequence[float]) -> dict[str, Any]:
+def cell_task(cfg: SimConfig, cell: Sequence[float]) -> dict[str, Any]:
     """Run every mode of `cfg` in the world of `cell` on trajectories 0 .. N-1; per mode the
     per-trajectory success, time [s] and censoring, and the cell's compute time.
 
@@ -232,11 +233,11 @@ def cell_task(cfg: core.SimConfig, cell: Sequence[float]) -> dict[str, Any]:
     t0 = time.perf_counter()
     c = dataclasses.replace(with_world(cfg, cell), max_paths=0)
     n = c.trajectories
-    chunks = [core.run_chunk(c, range(a, min(a + CHUNK, n))) for a in range(0, n, CHUNK)]
-    res = core.merge(c, chunks)
+    chunks = [run_chunk(c, range(a, min(a + CHUNK, n))) for a in range(0, n, CHUNK)]
+    res = merge(c, chunks)
     modes: dict[str, Any] = {}
     for name, r in res.modes.items():
-        gave_up, limit = core.censored(c, r)
+        gave_up, limit = censored(c, r)
         modes[name] = {
             "success": r.success.astype(int).tolist(),
             "time_s": r.time_s.tolist(),
@@ -328,7 +329,7 @@ def cells_dir(out: Path) -> Path:
 
 def load_done(
     out: Path,
-    cfg: core.SimConfig,
+    cfg: SimConfig,
     cells: Sequence[tuple[float, ...]],
     configs: dict[str, CellConfig] | None = None,
 ) -> dict[str, dict[str, Any]]:
@@ -379,7 +380,7 @@ def check_out(out: Path, resume: bool) -> None:
 
 
 def run_sweep(
-    cfg: core.SimConfig,
+    cfg: SimConfig,
     grid: Grid,
     out: Path,
     executor: Callable[[], Any],
@@ -639,7 +640,7 @@ def _p(p: float) -> str:
 
 
 def run_command(
-    cfg: core.SimConfig,
+    cfg: SimConfig,
     grid: Grid,
     out: Path,
     address: str | None,

@@ -5,7 +5,7 @@ many trials on one batch is optimistic by selection; this fresh evaluation is no
 
 Both configurations run S and the tuned mode M (DS unless `--mode` says otherwise) on the
 same held-out trajectories (paired). Reported per configuration and mode: the headline
-numbers with their 95 % intervals (`app.study.core.headline`); the gain of the tuned
+numbers with their 95 % intervals (`app.study.summary.headline`); the gain of the tuned
 configuration's M over the base's M per metric as the mean paired difference over
 trajectories with its 95 % t interval (`metrics.paired_difference`; time as the ratio of
 geometric means, from log times), as `gain_<M>`; and, on the tuned configuration, M against
@@ -22,7 +22,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from dsteleop.app.study.core import ModeResult, StudyResult, headline, merge
+from dsteleop.app.study.results import ModeResult, StudyResult, merge
+from dsteleop.app.study.summary import headline
 from dsteleop.app.tune.driver import Executor, TaskError, TuneSettings
 from dsteleop.app.tune.trial import (
     StudyBatch,

@@ -5,7 +5,7 @@ A trial evaluates one arbitration configuration, S and the tuned mode paired, on
 takes only picklable values, so the same function runs in this process, in a process pool or
 as a Ray task:
 
-    study_task     the tuning batch of the closed-loop study (`app.study.core.run_chunk`,
+    study_task     the tuning batch of the closed-loop study (`app.study.batch.run_chunk`,
                    S and the tuned mode of every trajectory in one batch) -> flat metrics
     study_chunk    some trajectories of a batch -> the per-trajectory results (`ChunkResult`;
                    the held-out evaluation merges them)
@@ -29,8 +29,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from dsteleop.app.study.core import ChunkResult, SimConfig, headline, run_chunk
+from dsteleop.app.study.batch import run_chunk
 from dsteleop.app.study.grasps import Grasps
+from dsteleop.app.study.planar import SimConfig
+from dsteleop.app.study.results import ChunkResult
+from dsteleop.app.study.summary import headline
 from dsteleop.app.tune.objective import MODE_METRICS, key
 from dsteleop.arbitration import ArbitrationConfig, Mode
 from dsteleop.errors import ConfigError, InputError
@@ -159,7 +162,7 @@ def study_task(batch: StudyBatch, arbitration: Mapping[str, Any]) -> dict[str, f
     """One trial on the study: every trajectory of `batch`, S and the tuned mode.
 
     Returns:
-        `study.<MODE>.<metric>` for each of `app.study.core.headline`'s keys, and
+        `study.<MODE>.<metric>` for each of `app.study.summary.headline`'s keys, and
         `study.seconds`, the time this took [s].
     """
     t0 = time.perf_counter()
