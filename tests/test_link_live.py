@@ -276,8 +276,7 @@ def test_serve_builds_the_linked_robot_with_its_twin_and_shows_it_lost(tmp_path)
     page's scene is the twin's kitchen, the loop's ticks carry its poses, a killed far end
     shows red as "lost: robot lost" on the page within 0.2 s (+ ticks), and a restarted one
     is driven again."""
-    from dsteleop.app.cli.compose import build
-    from dsteleop.app.cli.options import LoopOptions
+    from dsteleop.app.compose import LoopOptions, build
     from dsteleop.app.plants.kitchen import KitchenTask
     from dsteleop.app.session.schema import Status
     from dsteleop.app.viewer.panel import status_view
@@ -337,8 +336,7 @@ def test_the_operators_stop_halts_a_linked_robot_through_the_loop(tmp_path):
     the link: the far end's measured palm (what the records carry) stands still within half a
     second, while commands keep flowing (the loop's halt, not the far end's watchdog), and
     moves again after Resume."""
-    from dsteleop.app.cli.compose import build
-    from dsteleop.app.cli.options import LoopOptions
+    from dsteleop.app.compose import LoopOptions, build
     from dsteleop.app.loop import tick as loop_tick
 
     cfg = link_file(tmp_path, free_port(), robot="panda")
