@@ -40,7 +40,7 @@ from dsteleop.arbitration import HandState
 from dsteleop.arbitration.se3 import so3_exp, so3_log
 from dsteleop.errors import ConfigError
 from dsteleop.robot.scene import SceneGeometry, ScenePoses
-from dsteleop.robot.task import EventKind, Outcome, Phase, TaskEvent
+from dsteleop.robot.task import Candidates, EventKind, Outcome, Phase, TaskEvent
 from dsteleop.tracking.types import HandSample
 
 if TYPE_CHECKING:
@@ -303,7 +303,14 @@ class Task(Protocol):
         ...
 
     def goal(self) -> HandState | None:
-        """The active goal as the robot knows it (noisy), or None once the task is done."""
+        """The active goal as the robot knows it (noisy), or None once the task is done, or
+        while the robot is not told its goal (`candidates` says what it chooses among)."""
+        ...
+
+    def candidates(self) -> Candidates | None:
+        """The goals a robot that is not told its goal chooses among (`--goal infer`): their
+        poses as it knows them and its uncertainty of each; None when it is told its goal,
+        or once the task is done."""
         ...
 
     def true_goals(self) -> tuple[HandState, HandState]:

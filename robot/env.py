@@ -37,8 +37,10 @@ from dsteleop.robot.bullet import pb
 from dsteleop.robot.description import RobotDescription, load_description
 from dsteleop.robot.kinematics import ArmChain
 from dsteleop.robot.model import LoadedRobot, load_robot, palm_tip_joints, robot_urdf_text
+from dsteleop.robot.perception import PerceptionError
 from dsteleop.robot.scene import SceneGeometry, ScenePoses, VisualGeometry, VisualKind
 from dsteleop.robot.task import (
+    Phase,
     PickPlaceTask,
     Region,
     SceneRegions,
@@ -80,6 +82,10 @@ class EnvConfig:
         place_position_m: true place goal: palm above the bin centre [m].
         settle_s: simulated time the scene settles after a reset, robot holding home [s].
         description: the robot (default: the iiwa with the four-finger hand).
+        infer: the robot is not told its utensil: every utensil is a candidate goal
+            (`PickPlaceTask.candidates_true`), and the task's utensil is the one grasped.
+        perception: how the robot's known goals are drawn (None: isotropic, the task's
+            goal noise; `robot.perception`).
     """
 
     robot: RobotConfig = field(default_factory=RobotConfig)
@@ -87,6 +93,8 @@ class EnvConfig:
     place_position_m: tuple[float, float, float] = (BIN_CENTER_M[0], BIN_CENTER_M[1], 0.45)
     settle_s: float = 1.0
     description: RobotDescription = field(default_factory=lambda: load_description("iiwa"))
+    infer: bool = False
+    perception: PerceptionError | None = None
 
     @property
     def home_position_m(self) -> tuple[float, float, float]:
@@ -135,7 +143,6 @@ class KitchenEnv:
         self._loaded: LoadedRobot | None = None
         self._world: WorldBodies | None = None
         self._task: PickPlaceTask | None = None
-        self._utensil_id = -1
         self._geometry: SceneGeometry | None = None
         self._pose_links: list[int] = []
         self._pose_bodies: list[int] = []
@@ -194,11 +201,19 @@ class KitchenEnv:
         for _ in range(round(self.config.settle_s / self.config.robot.control_dt_s)):
             self._robot.step()
         self._robot.reset_clock()
-        self._utensil_id = self._world.utensils[utensil]
         pick = self._grasp_pose(utensil)
         place = (np.asarray(self.config.place_position_m, dtype=np.float64), R_PALM_DOWN.copy())
+        candidates = {n: self._grasp_pose(n) for n in UTENSIL_NAMES} if self.config.infer else {}
         self._task = PickPlaceTask(
-            self.config.task, utensil, pick, place, _regions(), n_fingers, seed
+            self.config.task,
+            utensil,
+            pick,
+            place,
+            _regions(),
+            n_fingers,
+            seed,
+            candidates_true=candidates,
+            perception=self.config.perception,
         )
         state = self._robot.state()
         self._task.start(state.palm, state.t_s)
@@ -270,18 +285,32 @@ class KitchenEnv:
         """The robot's current state."""
         return self.robot.state()
 
-    def _observe(self, state: BulletArmState) -> TaskObservation:
-        p, _ = pb.getBasePositionAndOrientation(self._utensil_id, physicsClientId=self._c)
-        name = self.task.utensil
+    @property
+    def _utensil_id(self) -> int:
+        """The body of the task's utensil (told, or grasped; before a grasp of a utensil the
+        robot is not told, the person's intended one)."""
+        return self.world.utensils[self.task.utensil]
+
+    def _holds(self, state: BulletArmState, name: str) -> bool:
+        """The hand holds utensil `name`: the grasp helper, or fingers clamping it."""
         robot = self.robot
-        gripping = robot.touching_groups(self._utensil_id) & robot.closed_groups(0.5)
-        by_fingers = robot.clamps(gripping)
+        gripping = robot.touching_groups(self.world.utensils[name]) & robot.closed_groups(0.5)
+        return state.grasped == name or robot.clamps(gripping)
+
+    def _observe(self, state: BulletArmState) -> TaskObservation:
+        uid = self._utensil_id
+        p, _ = pb.getBasePositionAndOrientation(uid, physicsClientId=self._c)
+        task = self.task
+        holding = None
+        if not task.told and task.phase == Phase.PICK:
+            holding = next((n for n in self.world.utensils if self._holds(state, n)), None)
         return TaskObservation(
             t_s=state.t_s,
             palm=state.palm,
             p_utensil_m=np.array(p, dtype=np.float64),
-            held=state.grasped == name or by_fingers,
-            touching=any(c.other_body == self._utensil_id for c in state.contacts),
+            held=self._holds(state, task.utensil),
+            touching=any(c.other_body == uid for c in state.contacts),
+            holding=holding,
         )
 
     def _grasp_pose(self, name: str) -> tuple[Array, Array]:

@@ -13,6 +13,16 @@ Sequence:
            within `release_radius_m` of the known place pose, then open, latched.
     done   an outcome was decided.
 
+A robot that is not told its utensil (`candidates_true` given: the goal is inferred, `--goal
+infer`) knows every utensil in the holder as a candidate (`candidates()`: each one's pose as
+it perceives it, drawn from `perception`, and each one's own finger schedule: closed once the
+palm came within the closing radius of that candidate), and in the place phase the bin as the
+one candidate. The task's utensil is then the one the person grasps: the first utensil held
+for `grasp_hold_ticks` ends the pick (its `grasp` event names it) and is judged as above;
+before that only the timeout decides (a utensil knocked out of the holder is not the task's).
+`utensil` names the person's intended utensil until then (the demo person's; the robot never
+reads it), and `intended` keeps it.
+
 Events: `goal` (a goal became active; X_start reset), `grasp`, `release` (a held utensil is
 no longer held), `success`, `failure`. Outcome rules, checked every tick once the utensil has
 been at rest (moved less than `rest_move_m`) and free of the hand for `rest_ticks` ticks:
@@ -31,8 +41,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from dsteleop.arbitration.se3 import HandState, so3_exp, so3_log
+from dsteleop.arbitration.se3 import HandState, so3_log
+from dsteleop.arbitration.se3 import stack as stack_states
 from dsteleop.errors import ConfigError
+from dsteleop.robot.perception import PerceptionError
 
 Array = NDArray[np.float64]
 
@@ -159,6 +171,9 @@ class TaskObservation:
         held: the hand holds the utensil (grasp helper engaged, or the thumb and another
             closed finger touch it).
         touching: any robot link touches the utensil.
+        holding: the utensil the hand holds, by name, whichever it is (None: none), for a
+            task whose utensil is not told (`PickPlaceTask.candidates_true`); `p_utensil_m`,
+            `held` and `touching` are then of the task's utensil once one was grasped.
     """
 
     t_s: float
@@ -166,6 +181,7 @@ class TaskObservation:
     p_utensil_m: Array
     held: bool
     touching: bool
+    holding: str | None = None
 
 
 @dataclass(frozen=True)
@@ -183,12 +199,20 @@ class SceneRegions:
     floor_below_z_m: float
 
 
-def _noisy(
-    p: Array, R: Array, rng: np.random.Generator, sp: float, sr: float
-) -> tuple[Array, Array]:
-    dp = rng.normal(0.0, sp, 3) if sp > 0 else np.zeros(3)
-    dr = rng.normal(0.0, sr, 3) if sr > 0 else np.zeros(3)
-    return p + dp, so3_exp(dr) @ R
+@dataclass(frozen=True)
+class Candidates:
+    """The goals a robot that is not told its goal chooses among (module docstring).
+
+    Attributes:
+        names: one per candidate (the utensils', or "bin").
+        goals: batch (K,): each one's pose as the robot knows it (noisy) and its finger goal.
+        sigma: (K, 6 + F) the robot's perception error sd of each, per dimension
+            (`PerceptionError.sigma`).
+    """
+
+    names: tuple[str, ...]
+    goals: HandState
+    sigma: Array
 
 
 @dataclass
@@ -203,6 +227,10 @@ class PickPlaceTask:
         regions: outcome regions.
         n_fingers: number of robot fingers.
         seed: seed of the goal noise (same seed, same known goals).
+        candidates_true: the robot is not told its utensil: every utensil's true grasp pose
+            by name (the candidates, in a fixed order); empty: it is told `utensil`.
+        perception: how the robot's known goals are drawn (None: isotropic, the config's
+            `goal_noise_pos_m` and `goal_noise_rot_rad`, as a told goal always was).
     """
 
     config: TaskConfig
@@ -212,6 +240,8 @@ class PickPlaceTask:
     regions: SceneRegions
     n_fingers: int
     seed: int
+    candidates_true: dict[str, tuple[Array, Array]] = field(default_factory=dict)
+    perception: PerceptionError | None = None
     phase: Phase = Phase.PICK
     events: list[TaskEvent] = field(default_factory=list)
     outcome: Outcome | None = None
@@ -223,17 +253,63 @@ class PickPlaceTask:
     _was_held: bool = False
     _rest_ticks: int = 0
     _recent_p: list[Array] = field(default_factory=list)
+    _closing_at: set[str] = field(default_factory=set)
+    _holding: str | None = None
 
     def __post_init__(self) -> None:
         rng = np.random.default_rng(self.seed)
         c = self.config
-        self.pick_known = _noisy(*self.pick_true, rng, c.goal_noise_pos_m, c.goal_noise_rot_rad)
-        self.place_known = _noisy(*self.place_true, rng, c.goal_noise_pos_m, c.goal_noise_rot_rad)
+        model = self.perception or PerceptionError.isotropic(
+            c.goal_noise_pos_m, c.goal_noise_rot_rad
+        )
+        self.model = model
+        self.intended = self.utensil
+        #: Each candidate's pose as the robot knows it (told: none), in a fixed order.
+        self.candidates_known: dict[str, tuple[Array, Array]] = {}
+        if self.candidates_true:
+            for name, pose in self.candidates_true.items():
+                self.candidates_known[name] = model.sample(*pose, rng)
+            self.pick_known = self.candidates_known.get(self.utensil, self.pick_true)
+        else:
+            self.pick_known = model.sample(*self.pick_true, rng)
+        self.place_known = model.sample(*self.place_true, rng)
+
+    @property
+    def told(self) -> bool:
+        """The robot is told its utensil (no candidates)."""
+        return not self.candidates_true
 
     # ------------------------------------------------------------------ goals
+    def candidates(self) -> Candidates | None:
+        """What a robot that is not told its utensil chooses among (module docstring): every
+        utensil in the pick phase, the bin in the place phase; None when it is told, or once
+        the task is done."""
+        if self.told or self.phase == Phase.DONE:
+            return None
+        F = self.n_fingers
+        if self.phase == Phase.PICK:
+            names = tuple(self.candidates_known)
+            poses = [self.candidates_known[n] for n in names]
+            fingers = [0.0 if n in self._closing_at else 1.0 for n in names]
+            true = [self.candidates_true[n][0] for n in names]
+        else:
+            names = ("bin",)
+            poses = [self.place_known]
+            fingers = [1.0 if self._releasing else 0.0]
+            true = [self.place_true[0]]
+        goals = stack_states(
+            [HandState(p.copy(), R.copy(), np.full(F, g)) for (p, R), g in zip(poses, fingers)]
+        )
+        # The robot knows its error's statistics where the objects are (it sees them there).
+        sigma = np.stack([self.model.sigma(p, F) for p in true])
+        return Candidates(names, goals, sigma)
+
     @property
     def goal(self) -> HandState:
-        """The active goal as the robot knows it (noisy pose + scheduled finger openness)."""
+        """The active goal as the robot knows it (noisy pose + scheduled finger openness); a
+        robot not told its utensil knows none in the pick phase (`candidates`)."""
+        if self.phase == Phase.PICK and not self.told:
+            raise ConfigError("the robot is not told its utensil: it chooses among candidates()")
         if self.phase == Phase.PICK:
             g = 0.0 if self._closing else 1.0
             p, R = self.pick_known
@@ -262,26 +338,44 @@ class PickPlaceTask:
             return []
         new: list[TaskEvent] = []
         c = self.config
-        if self.phase == Phase.PICK and not self._closing:
-            p, R = self.pick_known
-            d = float(np.linalg.norm(obs.palm.position - p))
-            a = float(np.linalg.norm(so3_log(R @ obs.palm.rotation.T)))
-            self._closing = d < c.close_radius_m and a < c.close_radius_rad
+        if self.phase == Phase.PICK and self.told and not self._closing:
+            self._closing = self._near(obs.palm, self.pick_known)
+        elif self.phase == Phase.PICK:
+            for name, pose in self.candidates_known.items():
+                if name not in self._closing_at and self._near(obs.palm, pose):
+                    self._closing_at.add(name)
         if self.phase == Phase.PLACE and not self._releasing:
             d = float(np.linalg.norm(obs.palm.position - self.place_known[0]))
             self._releasing = d < c.release_radius_m
-        self._held_ticks = self._held_ticks + 1 if obs.held else 0
-        if obs.held and not self._was_held:
+        held = obs.held
+        if not self.told and self.phase == Phase.PICK:
+            # Not told: whichever utensil the hand holds, held on for grasp_hold_ticks.
+            held = obs.holding is not None
+            if obs.holding != self._holding:
+                self._held_ticks = 0
+            self._holding = obs.holding
+        self._held_ticks = self._held_ticks + 1 if held else 0
+        if held and not self._was_held:
             self._was_held = True
-        elif self._was_held and not obs.held and not obs.touching:
+        elif self._was_held and not held and not obs.touching:
             self._was_held = False
             new.append(TaskEvent(EventKind.RELEASE, obs.t_s))
         if self.phase == Phase.PICK and self._held_ticks >= c.grasp_hold_ticks:
+            if not self.told and obs.holding is not None:
+                self._take(obs.holding)
             new.append(TaskEvent(EventKind.GRASP, obs.t_s, self.utensil))
             self.phase = Phase.PLACE
             self.X_start = obs.palm
             new.append(TaskEvent(EventKind.GOAL, obs.t_s, "place"))
-        outcome = self._check_outcome(obs)
+            if not self.told:
+                self._recent_p.clear()  # judged from here on: this utensil's rest window
+                self._rest_ticks = 0
+                self.events.extend(new)
+                return new
+        if not self.told and self.phase == Phase.PICK:
+            outcome = self._timeout(obs)  # no utensil is the task's before a grasp
+        else:
+            outcome = self._check_outcome(obs)
         if outcome is not None:
             self.outcome = outcome
             self.phase = Phase.DONE
@@ -289,6 +383,25 @@ class PickPlaceTask:
             new.append(TaskEvent(kind, obs.t_s, outcome.reason))
         self.events.extend(new)
         return new
+
+    def _near(self, palm: HandState, pose: tuple[Array, Array]) -> bool:
+        """The palm is within the closing radius (position and orientation) of `pose`."""
+        p, R = pose
+        d = float(np.linalg.norm(palm.position - p))
+        a = float(np.linalg.norm(so3_log(R @ palm.rotation.T)))
+        return d < self.config.close_radius_m and a < self.config.close_radius_rad
+
+    def _take(self, name: str) -> None:
+        """A robot not told its utensil grasped `name`: it is the task's from now on."""
+        self.utensil = name
+        self.pick_true = self.candidates_true[name]
+        self.pick_known = self.candidates_known[name]
+        self._closing = True
+
+    def _timeout(self, obs: TaskObservation) -> Outcome | None:
+        if obs.t_s - self.t_start_s >= self.config.timeout_s:
+            return Outcome(False, "timeout", obs.t_s - self.t_start_s, self.utensil)
+        return None
 
     def _check_outcome(self, obs: TaskObservation) -> Outcome | None:
         c = self.config

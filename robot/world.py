@@ -10,6 +10,10 @@ top is the plane z = 0 (the robot's base stands at the table's near edge):
               rail, so a pull up and towards the bin frees them.
     bin       centred at (0.58, -0.26): inner 0.36 x 0.36 m, walls 0.08 m high
     floor     plane z = -0.75
+    camera    the robot's own RGB-D camera, 1 m above the robot's base, looking down at the
+              table between holder and bin (`perception.ROBOT_CAMERA_M`, kept there so the
+              task imports no PyBullet): the robot perceives the utensils and the bin
+              through it, 0.8-1.0 m away
 
 Every object is built from primitives with `createMultiBody`; each body's base frame is its
 centre-of-mass frame (no inertial offset), so the shapes below are placed relative to it and
@@ -26,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dsteleop.arbitration.se3 import matrix_from_quat_wxyz, quat_wxyz_from_matrix, so3_exp
+from dsteleop.errors import ContractError
 from dsteleop.robot.bullet import pb
 
 Array = NDArray[np.float64]
@@ -205,7 +210,7 @@ def _shape_args(parts: tuple[Part, ...]) -> dict[str, list[object]]:
             radii.append(p.size_m[0])
             lengths.append(p.size_m[1])
         else:  # pragma: no cover - specs are constants
-            raise ValueError(p.kind)
+            raise ContractError(p.kind)
         pos.append(list(p.p_body_part_m))
         orn.append(list(quat_xyzw_from_R(np.array(p.R_body_part))))
     return {

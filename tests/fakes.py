@@ -29,7 +29,7 @@ from dsteleop.app.ports import (
 )
 from dsteleop.arbitration import HandState, so3_exp
 from dsteleop.robot.scene import SceneGeometry
-from dsteleop.robot.task import EventKind, Outcome, Phase, TaskEvent
+from dsteleop.robot.task import Candidates, EventKind, Outcome, Phase, TaskEvent
 
 Array = NDArray[np.float64]
 FINGERS = ("thumb", "index", "middle", "ring")
@@ -159,6 +159,9 @@ class FakeTask:
         if self.phase is Phase.DONE:
             return None
         return self.pick if self.phase is Phase.PICK else self.place
+
+    def candidates(self) -> Candidates | None:
+        return None
 
     def true_goals(self) -> tuple[HandState, HandState]:
         return self.pick, self.place

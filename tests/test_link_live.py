@@ -5,14 +5,12 @@ child process, processes killed with SIGKILL. No fakes for the link."""
 from __future__ import annotations
 
 import json
-import signal
 import socket
 import subprocess
 import sys
 import textwrap
-import threading
 import time
-from pathlib import Path
+from datetime import datetime
 from typing import Any
 
 import numpy as np
@@ -26,62 +24,9 @@ from dsteleop.app.link.session import Received, Subscription, Topic, open_sessio
 from dsteleop.app.ports import ROBOT_LOST
 from dsteleop.arbitration import HandState
 from dsteleop.errors import InputError
+from tests.link_rig import CLI, Far, Router, free_port, link_file
 
 pytestmark = pytest.mark.slow
-
-CLI = [sys.executable, "-m", "dsteleop.app.cli.main"]
-READY = "robot-sim: ("  # robot-sim's log line once its session and simulation are up
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def link_file(tmp_path: Path, port: int, **extra: Any) -> Path:
-    ep = f"tcp/127.0.0.1:{port}"
-    data = {"far": {"listen": [ep]}, "near": {"connect": [ep]}, "connect_timeout_s": 5.0, **extra}
-    f = tmp_path / f"link-{port}.json"
-    f.write_text(json.dumps(data))
-    return f
-
-
-class Far:
-    """`dsteleop robot-sim` in a child process; its stderr collected in a thread."""
-
-    def __init__(self, config: Path) -> None:
-        self.proc = subprocess.Popen(
-            [*CLI, "robot-sim", "--zenoh", str(config)],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
-        self.lines: list[str] = []
-        self._ready = threading.Event()
-        threading.Thread(target=self._read, daemon=True).start()
-        if not self._ready.wait(120):
-            self.proc.kill()
-            raise AssertionError("robot-sim did not start: " + "".join(self.lines))
-
-    def _read(self) -> None:
-        assert self.proc.stderr is not None
-        for line in self.proc.stderr:
-            self.lines.append(line)
-            if READY in line:
-                self._ready.set()
-
-    def terminate(self) -> dict[str, Any]:
-        """SIGTERM; robot-sim's JSON summary."""
-        self.proc.send_signal(signal.SIGTERM)
-        out, _ = self.proc.communicate(timeout=30)
-        assert self.proc.returncode == 0, "".join(self.lines)
-        result: dict[str, Any] = json.loads(out.strip().splitlines()[-1])
-        return result
-
-    def kill(self) -> None:
-        self.proc.kill()
-        self.proc.wait()
 
 
 def drive(robot: ZenohRobot, X0: HandState, seconds: float, t0: float, seq0: int = 0) -> int:
@@ -331,8 +276,7 @@ def test_serve_builds_the_linked_robot_with_its_twin_and_shows_it_lost(tmp_path)
     page's scene is the twin's kitchen, the loop's ticks carry its poses, a killed far end
     shows red as "lost: robot lost" on the page within 0.2 s (+ ticks), and a restarted one
     is driven again."""
-    from dsteleop.app.cli.compose import build
-    from dsteleop.app.cli.options import LoopOptions
+    from dsteleop.app.compose import LoopOptions, build
     from dsteleop.app.plants.kitchen import KitchenTask
     from dsteleop.app.session.schema import Status
     from dsteleop.app.viewer.panel import status_view
@@ -369,13 +313,30 @@ def test_serve_builds_the_linked_robot_with_its_twin_and_shows_it_lost(tmp_path)
             far.kill()
 
 
+def watchdog_halts_s(lines: list[str]) -> list[float]:
+    """How long each halt of robot-sim's watchdog lasted, by its log lines' times, until
+    commands came again (inf for one that never ended)."""
+
+    def t_s(line: str) -> float:
+        stamp = datetime.strptime(line[:23], "%Y-%m-%d %H:%M:%S,%f")
+        return stamp.timestamp()
+
+    halts, t_halt = [], None
+    for line in lines:
+        if "halted, no command for" in line:
+            t_halt = t_s(line)
+        elif "commands arrive; moving" in line and t_halt is not None:
+            halts.append(t_s(line) - t_halt)
+            t_halt = None
+    return halts + ([float("inf")] if t_halt is not None else [])
+
+
 def test_the_operators_stop_halts_a_linked_robot_through_the_loop(tmp_path):
     """The page's Stop (posted to the loop's controls, as the button does) with a robot over
     the link: the far end's measured palm (what the records carry) stands still within half a
     second, while commands keep flowing (the loop's halt, not the far end's watchdog), and
     moves again after Resume."""
-    from dsteleop.app.cli.compose import build
-    from dsteleop.app.cli.options import LoopOptions
+    from dsteleop.app.compose import LoopOptions, build
     from dsteleop.app.loop import tick as loop_tick
 
     cfg = link_file(tmp_path, free_port(), robot="panda")
@@ -403,9 +364,10 @@ def test_the_operators_stop_halts_a_linked_robot_through_the_loop(tmp_path):
         after = ticks(loop, 4.0)
         assert not any(r.stopped for r in after) and after[0].notes == ("resume",)
         assert speeds(after).max() > 0.01  # driven again
-        # Commands kept coming all along: the far end's watchdog never halted it.
-        assert not [ln for ln in far.lines if "halted, no command for" in ln], far.lines
         assert far.terminate()["applied"] > 0
+        # Commands kept coming all along: the far end's watchdog never halted it for longer
+        # than a tick starved by a busy machine (0.25 s seen at load 8) before they came again.
+        assert max(watchdog_halts_s(far.lines), default=0.0) < 0.5, far.lines
     finally:
         built.close()
         if far.proc.poll() is None:
@@ -577,51 +539,64 @@ def test_each_token_goes_with_its_entity_while_the_session_stays_open():
         observer.close()
 
 
-def _router(port: int) -> Any:
-    """A Zenoh router on 127.0.0.1:port, in this process (zenoh itself in router mode, as
-    `zenohd` runs it; no scouting)."""
-    import zenoh
+#: How the two ends can meet (docs/link.md, "Behind a Zenoh router, and peer to peer").
+SETUPS = (
+    # the docs' setup for a ROS 2 system: both ends listen nowhere (issue 33, problem 6)
+    "router, listen []",
+    # rmw_zenoh's own default: peers on a free loopback port, connected by the router's gossip
+    "router, rmw_zenoh's listen",
+    # peer to peer, the link's defaults (the robot listens, dsteleop connects)
+    "peer to peer, defaults",
+)
 
-    c = zenoh.Config()
-    c.insert_json5("mode", '"router"')
-    c.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
-    c.insert_json5("scouting/multicast/enabled", "false")
-    return zenoh.open(c)
+
+def setup_ends(setup: str, ep: str) -> tuple[bool, dict[str, list[str]], dict[str, list[str]]]:
+    """Whether `setup` has a router (on `ep`), and the far and near ends' endpoints."""
+    if setup == "router, listen []":
+        return True, {"listen": [], "connect": [ep]}, {"listen": [], "connect": [ep]}
+    if setup == "router, rmw_zenoh's listen":
+        rmw = {"listen": ["tcp/127.0.0.1:0"], "connect": [ep]}
+        return True, rmw, rmw
+    return False, {"listen": [ep]}, {"connect": [ep]}
 
 
-def test_both_ends_behind_a_router_as_docs_link_md_says(tmp_path):
-    """Both ends connect to a Zenoh router and listen nowhere (`listen: []`, docs/link.md's
-    setup for a ROS 2 system): the state and the commands flow through the router, and a
-    third client of the router sees both nodes' liveliness tokens (issue 33, problem 6: as
-    peers that do not listen, nothing flowed)."""
+@pytest.mark.parametrize("setup", SETUPS)
+def test_both_ends_meet_behind_a_router_and_peer_to_peer(tmp_path, setup):
+    """Behind a Zenoh router (a separate process, as `zenohd`) with docs/link.md's endpoints,
+    with rmw_zenoh's default ones, and peer to peer with the link's defaults: the state and the
+    commands flow, and a third session connected to the router (or to the far end), as a ROS
+    2 tool would be, sees both nodes' liveliness tokens (issue 33, problem 6: as peers that
+    listen nowhere, nothing flowed behind a router)."""
     from dsteleop.app.link.far import FAR_NODE
     from dsteleop.app.link.near import NEAR_NODE
 
     port = free_port()
     ep = f"tcp/127.0.0.1:{port}"
-    router = _router(port)
+    with_router, far_ends, near_ends = setup_ends(setup, ep)
+    router = Router(port) if with_router else None
     cfg = tmp_path / "link.json"
-    cfg.write_text(
-        json.dumps(
-            {
-                "far": {"listen": [], "connect": [ep]},
-                "near": {"listen": [], "connect": [ep]},
-                "connect_timeout_s": 10.0,
-            }
-        )
-    )
-    far = Far(cfg)
-    robot = None
-    third = open_session(Endpoints(connect=(ep,)), 5.0, "third")
+    cfg.write_text(json.dumps({"far": far_ends, "near": near_ends, "connect_timeout_s": 10.0}))
+    far = third = robot = None
     try:
+        far = Far(cfg)
+        third = open_session(Endpoints(connect=(ep,)), 5.0, "third")
         robot = ZenohRobot(read_link_config(cfg))
         t0 = time.monotonic()
-        st = robot.reset(0.0)  # the far end's state came through the router
+        st = robot.reset(0.0)  # the far end's state came through
         n0 = robot._pose_in.count
-        drive(robot, st.X, 2.0, t0)
-        assert robot.link_status(time.monotonic() - t0) == ""
-        # about 30 states a second kept coming
+        y0 = st.X.position[1]
+        seq = drive(robot, st.X, 2.0, t0)
+        now = time.monotonic() - t0
+        assert robot.link_status(now) == ""
+        # about 30 states a second kept coming, and the palm followed the commands
         assert robot._pose_in.count - n0 > 0.5 * 30 * 2.0
+        ys = []
+        for _ in range(30):
+            s = robot.state(time.monotonic() - t0)
+            assert s is not None
+            ys.append(s.X.position[1])
+            seq = drive(robot, st.X, 1 / 30, t0, seq)
+        assert max(abs(y - y0) for y in ys) > 0.01
         zid = str(robot.node.zid)
         keys = _wait_tokens(
             third,
@@ -637,14 +612,17 @@ def test_both_ends_behind_a_router_as_docs_link_md_says(tmp_path):
     finally:
         if robot is not None:
             robot.close()
-        third.close()
-        if far.proc.poll() is None:
+        if third is not None:
+            third.close()
+        if far is not None and far.proc.poll() is None:
             far.kill()
-        router.close()
-    # the commands went through the router too (about 60 sent; two that arrive together count
-    # as one applied, the newest wins: none was dropped as stale or out of order)
-    assert summary["applied"] > 0.25 * 30 * 2.0, summary
+        if router is not None:
+            router.close()
+    # the commands reached the far end (about 90 sent; two that arrive together count as one
+    # applied, the newest wins): none dropped as stale, out of order or stray
+    assert summary["applied"] > 0.25 * 30 * 3.0, summary
     assert summary["dropped_stale"] == summary["dropped_out_of_order"] == 0, summary
+    assert not any(n for d in summary["dropped_stray"].values() for n in d.values()), summary
 
 
 def _stray_publishers(session: Any, topic: str) -> list[tuple[str, Any]]:

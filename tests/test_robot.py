@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
@@ -24,6 +25,7 @@ from dsteleop.robot.hand_urdf import (
 )
 from dsteleop.robot.kinematics import ArmChain
 from dsteleop.robot.model import ARM_JOINTS, robot_urdf_text
+from dsteleop.robot.perception import PerceptionError
 from dsteleop.robot.scripted import goal_seeking_step, noise_free, run_autonomous
 from dsteleop.robot.task import EventKind, Phase, TaskConfig
 from dsteleop.robot.world import UTENSIL_NAMES, R_from_quat_xyzw
@@ -386,3 +388,61 @@ def test_scene_types_import_without_pybullet() -> None:
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
     assert out.returncode == 0, out.stderr
+
+
+def test_a_robot_not_told_its_utensil_makes_the_one_it_grasps_the_tasks() -> None:
+    """`EnvConfig.infer`: every utensil a candidate; the robot seeks one the person did not
+    intend (the candidates' own goals and finger schedules), and the grasp makes it the
+    task's: it is judged in the bin, the intended one stays in the holder."""
+    cfg = dataclasses.replace(EnvConfig(), infer=True, perception=PerceptionError(0.0, 0.0, 0.0))
+    with KitchenEnv(cfg) as env:
+        X = env.reset(utensil="spoon", seed=0).palm
+        task = env.task
+        while task.outcome is None:
+            c = task.candidates()
+            k = c.names.index("ladle") if c is not None and "ladle" in c.names else 0
+            X_goal = task.goal if c is None else c.goals.take(k)  # the bin: the one candidate
+            X_next = goal_seeking_step(X, X_goal, env.dt_s)
+            env.set_target(X_next.position, X_next.rotation, X_next.openness)
+            X = env.step().palm
+        assert task.outcome.success and task.outcome.utensil == "ladle", task.outcome
+        assert [e.detail for e in task.events if e.kind is EventKind.GRASP] == ["ladle"]
+        assert task.intended == "spoon"
+        p, _ = env.utensil_pose("spoon")
+        assert p[1] > 0.15  # still in the holder
+
+
+def test_a_kitchen_not_told_its_utensil_rebuilds_from_what_it_records() -> None:
+    """The kitchen task records whether its robot is told and how it perceives: a replay
+    rebuilds the same candidates (`task_options_from_meta`), and `--goal-noise` makes the
+    candidates' error isotropic."""
+    from dsteleop.app.plants.kitchen import KitchenTask, task_options_from_meta
+
+    a = KitchenTask(utensil="ladle", seed=4, infer=True, twin=False)
+    try:
+        a.reset()
+        meta = a.describe()
+        assert meta["goal"] == "infer" and meta["perception"]["depth_sigma_m"] == 0.02
+        assert a.goal() is None and a.candidates() is not None
+        b = KitchenTask(twin=False, **task_options_from_meta(meta))
+        try:
+            b.reset()
+            ca, cb = a.candidates(), b.candidates()
+            assert ca is not None and cb is not None
+            assert np.array_equal(ca.goals.position, cb.goals.position)
+            assert np.array_equal(ca.sigma, cb.sigma)
+        finally:
+            b.close()
+        a.set_goal_noise(0.03)
+        a.reset()
+        c = a.candidates()
+        assert c is not None and np.allclose(c.sigma[:, :3], 0.03)
+    finally:
+        a.close()
+    told = KitchenTask(utensil="ladle", seed=4, twin=False)
+    try:
+        told.reset()
+        assert told.candidates() is None and told.describe()["goal"] == "ladle"
+        assert task_options_from_meta(told.describe())["infer"] is False
+    finally:
+        told.close()

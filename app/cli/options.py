@@ -34,10 +34,10 @@ import argparse
 import json
 import logging
 import math
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from dsteleop.app.compose.options import LoopOptions
 from dsteleop.app.loop import LoopConfig, LostPolicy
 from dsteleop.app.outpaths import check_output_file, output_dir, output_file
 from dsteleop.app.rrd.target import DEFAULT_ADDR, RerunTarget
@@ -46,7 +46,6 @@ from dsteleop.errors import ConfigError, InputError
 from dsteleop.tracking.sources import (
     ROTATIONS_DEG,
     SOURCE_GRAMMAR,
-    SourceSpec,
     VideoFileSource,
     check_rotation,
     parse_source,
@@ -310,55 +309,6 @@ def add_loop_options(
     )
     add_video_options(parser)
     add_config_options(parser)
-
-
-@dataclass(frozen=True)
-class LoopOptions:
-    """The loop options of `run` and `serve`, checked.
-
-    Attributes:
-        source: the hand source.
-        loop: the loop configuration (mode, rate, lost policy, arbitration, ...).
-        utensil: the utensil to pick.
-        robot: the robot (`--robot`): a shipped description's name or a description file.
-        seed: seed of the goal noise and the demo operator.
-        goal_noise_m: goal position noise [m] (None: the task's default).
-        record: the session folder (run) or root (serve), or None.
-        record_video: record the camera frames too.
-        record_lerobot: write the recorded episodes into a LeRobot dataset there, or None.
-        loop_video: play a video source again when it ends.
-        rotate: turn video or camera frames [deg clockwise] (None: a video's own rotation).
-        allow_partial: accept a video that ends before the frames it declares.
-        time_limit_s: a trial without an outcome after this long fails [s] (None: the
-            task's default, 120 s).
-        rerun: where a Rerun recording of the run goes, or None (docs/recordings.md).
-        history: the operator history file (`--history`), or None: an empty history, kept
-            nowhere.
-        input_delay_given: the input delay was chosen (`--input-delay`, or a `--config`
-            file's loop section), 0 included; otherwise the demo takes its world's delay.
-    """
-
-    source: SourceSpec
-    loop: LoopConfig
-    utensil: str = "spoon"
-    robot: str = "iiwa"
-    seed: int = 0
-    goal_noise_m: float | None = None
-    record: Path | None = None
-    record_video: bool = False
-    record_lerobot: Path | None = None
-    loop_video: bool = False
-    rotate: int | None = None
-    allow_partial: bool = False
-    time_limit_s: float | None = None
-    rerun: RerunTarget | None = None
-    history: Path | None = None
-    input_delay_given: bool = False
-
-    @classmethod
-    def of(cls, source: str = "demo", loop: LoopConfig | None = None, **kw: Any) -> LoopOptions:
-        """Options for code (benches, tests): a source in the `--source` grammar."""
-        return cls(parse_source(source), loop or LoopConfig(), **kw)
 
 
 def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOptions:

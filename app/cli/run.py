@@ -29,13 +29,9 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from dsteleop.app.cli.options import (
-    LoopOptions,
-    add_loop_options,
-    check_video_complete,
-    loop_options,
-)
+from dsteleop.app.cli.options import add_loop_options, check_video_complete, loop_options
 from dsteleop.app.cli.signals import StopOnSignal
+from dsteleop.app.compose.options import LoopOptions
 from dsteleop.app.link.config import link_config_path
 from dsteleop.errors import ConfigError, RobotLostError
 
@@ -112,7 +108,7 @@ def command(args: argparse.Namespace) -> RunCommand:
 
 def run(args: argparse.Namespace) -> int:
     cmd = command(args)
-    from dsteleop.app.cli.compose import build
+    from dsteleop.app.compose.root import build
 
     opts = cmd.options
     log.info(

@@ -15,7 +15,7 @@ functions of `tick.py`. One tick:
     record    -> one TickRecord to every observer (and to the recorder, when recording)
 
 Everything a loop talks to is given to its constructor (the composition root is
-`app/cli/compose.py`): the hand, the robot, the task, the clock, the observers, where the operator
+`app/compose/`): the hand, the robot, the task, the clock, the observers, where the operator
 history persists, the camera-frame recorder and where "Start recording" writes.
 """
 

@@ -15,9 +15,16 @@ events, outcome). How it judges a robot (docs/ARCHITECTURE.md):
                  the far end's where its world is this one (the reference far end,
                  `robot-sim`), an estimate of the real scene for a real arm.
 
-Everything that rebuilds the same task (utensil, seed, goal noise, control period, timeout)
-is in `describe()`, which recordings store, so `task_from_meta` gives replays the same world
-and the same noisy goals.
+A robot that is not told its utensil (`infer`, `--goal infer`) chooses among `candidates()`:
+every utensil in the holder as it perceives them through its camera (`robot.perception`: the
+same error model draws each candidate's known pose and gives the belief its uncertainty), and
+the bin in the place phase; the task's utensil is the one the person grasps
+(`robot.task`). `--goal-noise M` makes that error isotropic, M on every axis, as a told
+goal's always was.
+
+Everything that rebuilds the same task (utensil, seed, goal noise, control period, timeout,
+whether the robot is told, its perception) is in `describe()`, which recordings store, so
+`task_from_meta` gives replays the same world and the same noisy goals.
 """
 
 from __future__ import annotations
@@ -34,8 +41,9 @@ from dsteleop.arbitration import HandState
 from dsteleop.robot.arm import CONTROL_DT_S, RobotConfig
 from dsteleop.robot.description import RobotDescription, load_description
 from dsteleop.robot.env import EnvConfig, KitchenEnv
+from dsteleop.robot.perception import PerceptionError
 from dsteleop.robot.scene import SceneGeometry
-from dsteleop.robot.task import Phase
+from dsteleop.robot.task import Candidates, Phase
 from dsteleop.robot.world import UTENSIL_NAMES
 
 
@@ -44,10 +52,12 @@ class KitchenTask:
 
     Args:
         description: the judged robot's description (its twin, or itself, stands here).
-        utensil: the utensil to pick (one of `UTENSIL_NAMES`).
+        utensil: the utensil to pick (one of `UTENSIL_NAMES`); with `infer`, the one the person
+            means to pick (the demo person's), never read by the robot.
         seed: seed of the goal noise.
-        goal_noise_m: std-dev of the noise on each goal position the robot knows [m]
-            (None: the task's default).
+        goal_noise_m: std-dev of the noise on each goal position the robot knows [m], per
+            axis (None: the task's default, or with `infer` the robot camera's anisotropic
+            `PerceptionError()`).
         goal_noise_rad: std-dev of the rotation noise on each goal [rad] (None: default).
         export_scene: compute per-tick link poses for a viewer.
         time_limit_s: a trial without an outcome after this long fails (`timeout`) [s]
@@ -55,6 +65,9 @@ class KitchenTask:
         control_dt_s: the loop's period [s]: each tick advances the world this much (None:
             the robot's default, 1/30 s).
         twin: judge a robot outside this world through its twin (module docstring).
+        infer: the robot is not told its utensil (module docstring).
+        perception: with `infer`, how the robot perceives the candidates (None:
+            `PerceptionError()`, or isotropic when `goal_noise_m` is given).
     """
 
     def __init__(
@@ -68,6 +81,8 @@ class KitchenTask:
         time_limit_s: float | None = None,
         control_dt_s: float | None = None,
         twin: bool = True,
+        infer: bool = False,
+        perception: PerceptionError | None = None,
     ) -> None:
         cfg = EnvConfig(description=description or load_description("iiwa"))
         if control_dt_s is not None:
@@ -79,7 +94,15 @@ class KitchenTask:
             task = dataclasses.replace(task, goal_noise_pos_m=float(goal_noise_m))
         if goal_noise_rad is not None:
             task = dataclasses.replace(task, goal_noise_rot_rad=float(goal_noise_rad))
-        self.config = dataclasses.replace(cfg, task=task)
+        if infer and perception is None:
+            perception = (
+                PerceptionError()
+                if goal_noise_m is None
+                else PerceptionError.isotropic(task.goal_noise_pos_m, task.goal_noise_rot_rad)
+            )
+        self.config = dataclasses.replace(
+            cfg, task=task, infer=infer, perception=perception if infer else None
+        )
         self.utensil = utensil
         self.seed = seed
         self.export_scene = export_scene
@@ -96,7 +119,12 @@ class KitchenTask:
 
     def goal(self) -> HandState | None:
         task = self.env.task
-        return None if task.phase == Phase.DONE else task.goal
+        if task.phase == Phase.DONE or (task.phase == Phase.PICK and not task.told):
+            return None
+        return task.goal
+
+    def candidates(self) -> Candidates | None:
+        return self.env.task.candidates()
 
     def update(self, state: RobotState) -> TaskStep:
         if self.twin:
@@ -117,16 +145,24 @@ class KitchenTask:
         )
 
     def set_goal_noise(self, sigma_m: float) -> None:
-        """New goal noise; takes effect at the next task reset (goals are drawn at reset)."""
-        self.config = dataclasses.replace(
-            self.config, task=dataclasses.replace(self.config.task, goal_noise_pos_m=float(sigma_m))
-        )
+        """New goal noise (isotropic, also for a robot not told its utensil); takes effect at
+        the next task reset (goals are drawn at reset)."""
+        task = dataclasses.replace(self.config.task, goal_noise_pos_m=float(sigma_m))
+        perception = self.config.perception
+        if perception is not None:
+            perception = PerceptionError.isotropic(float(sigma_m), perception.rotation_sigma_rad)
+        self.config = dataclasses.replace(self.config, task=task, perception=perception)
 
     def describe(self) -> dict[str, Any]:
         task = self.env.task
+        perception = self.config.perception
         return {
             "kind": "kitchen",
             "utensil": self.utensil,
+            # What the robot is told: a utensil, or "infer" (it chooses among candidates).
+            "goal": "infer" if self.config.infer else self.utensil,
+            "perception": None if perception is None else perception.to_dict(),
+            "candidates_known": {n: _pose(pose) for n, pose in task.candidates_known.items()},
             "seed": self.seed,
             "goal_noise_m": self.config.task.goal_noise_pos_m,
             "goal_noise_rad": self.config.task.goal_noise_rot_rad,
@@ -184,4 +220,11 @@ def task_options_from_meta(meta: dict[str, Any]) -> dict[str, Any]:
         "time_limit_s": (meta.get("task") or {}).get("timeout_s"),
         # Sessions before the world kept the loop's rate stepped 1/30 s a tick whatever it was.
         "control_dt_s": float(meta.get("control_dt_s") or CONTROL_DT_S),
+        # Sessions before goal inference told the robot its utensil.
+        "infer": meta.get("goal") == "infer",
+        "perception": (
+            None
+            if meta.get("perception") is None
+            else PerceptionError.from_dict(meta["perception"])
+        ),
     }

@@ -29,7 +29,7 @@ from dsteleop.arbitration import HandState
 from dsteleop.errors import InputError
 from dsteleop.robot.description import description_from_record
 from dsteleop.robot.scene import SceneGeometry
-from dsteleop.robot.task import Phase
+from dsteleop.robot.task import Candidates, Phase
 
 
 class _Cursor:
@@ -119,6 +119,11 @@ class RecordedTask:
         if prev is not None and prev.phase is Phase.DONE and r.X_reset is None:
             return None  # schema 1 recorded the achieved state as the goal once done
         return r.X_goal
+
+    def candidates(self) -> Candidates | None:
+        """None: a recorded task plays back the goal the robot sought (`goal`), inferred or
+        told."""
+        return None
 
     def true_goals(self) -> tuple[HandState, HandState]:
         raise InputError("a recorded task has no true goals to show a demo operator")

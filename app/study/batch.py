@@ -55,6 +55,7 @@ from dsteleop.arbitration import (
 )
 from dsteleop.arbitration.history import history_terms
 from dsteleop.arbitration.se3 import stack as stack_states
+from dsteleop.errors import ContractError
 from dsteleop.robot.task import Phase
 
 
@@ -339,7 +340,7 @@ class _Tape:
     def start(self, T: int, J: int) -> _Tape:
         """Ready for a run of the same shape."""
         if (T, J) != self.shape:
-            raise ValueError(f"a tape of {self.shape} for a run of {(T, J)}")
+            raise ContractError(f"a tape of {self.shape} for a run of {(T, J)}")
         self._from = self._ticks = 0
         return self
 
@@ -403,7 +404,7 @@ def _simulate(
     """
     C, N = len(modes), goals.shape[0]
     if record is not None and C != 1:
-        raise ValueError("record needs a single mode")
+        raise ContractError("record needs a single mode")
     T, J = hands.T, C * N
     # One arbiter steps every mode's rows at once (a mixed batch: row j is in mode j // N).
     arb = make_arbiter(modes[0], cfg.arbitration)

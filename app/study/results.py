@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 from dsteleop.app.study.planar import Array, SimConfig, in_success_region
 from dsteleop.arbitration import metrics
 from dsteleop.arbitration.se3 import ROT, TRANS
+from dsteleop.errors import ContractError
 
 DEAD_BAND_MPS = 0.001  # the dead-band variant skips output actions slower than this [m/s]
 HIST_BINS = 16
@@ -298,7 +299,7 @@ def merge(cfg: SimConfig, chunks: Sequence[ChunkResult]) -> StudyResult:
     ordered = sorted(chunks, key=lambda c: int(c.indices[0]))
     idx = np.concatenate([c.indices for c in ordered])
     if not np.array_equal(idx, np.arange(cfg.trajectories)):
-        raise ValueError("chunks do not cover the trajectories exactly once")
+        raise ContractError("chunks do not cover the trajectories exactly once")
 
     modes = {m.value: concat_results([c.modes[m.value] for c in ordered]) for m in cfg.modes}
     return StudyResult(

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from dsteleop.app.cli.options import LoopOptions
+from dsteleop.app.compose.options import LoopOptions
 from dsteleop.app.inputs.demo import DemoCamera, DemoConfig, DemoOperator, demo_source
 from dsteleop.app.inputs.tracked import TrackedHandInput
 from dsteleop.app.loop import TeleopLoop
@@ -79,6 +79,12 @@ class Built:
             finally:
                 if self.rerun is not None:
                     self.rerun.close()
+
+
+def hand_mapping(fields: dict[str, Any]) -> MappingConfig | None:
+    """The hand's workspace mapping from its fields (`HandInput.mapping_config`, the
+    dataclass's own fields); None for a source without one (what a viewer shows)."""
+    return MappingConfig(**fields) if fields else None
 
 
 def resolve_source(spec: SourceSpec) -> SourceSpec:
