@@ -39,7 +39,7 @@ from typing import Any
 
 from dsteleop.app.cli.options import add_config_options, add_video_options, arbitration_config
 from dsteleop.app.outpaths import created_dir, output_dir, output_file
-from dsteleop.app.progress import Progress
+from dsteleop.app.tasks.progress import Progress
 from dsteleop.arbitration import ArbitrationConfig, Mode, registered
 from dsteleop.errors import ConfigError, InputError
 from dsteleop.tracking.sources import check_rotation

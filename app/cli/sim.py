@@ -29,7 +29,7 @@ from typing import Any
 from dsteleop.app.cli.options import add_config_options, arbitration_config, config_from_file
 from dsteleop.app.cli.world_options import add_world_arguments, world_overrides
 from dsteleop.app.outpaths import created_dir, output_dir
-from dsteleop.app.progress import Progress
+from dsteleop.app.tasks.progress import Progress
 from dsteleop.arbitration import Mode, registered
 from dsteleop.errors import ConfigError, InputError
 
@@ -185,7 +185,7 @@ def command(args: argparse.Namespace) -> SimCommand:
 
         sweep = parse_grid(args.sweep)
         if args.address is not None:
-            from dsteleop.app.tune.cluster import parse_address
+            from dsteleop.app.tasks.cluster import parse_address
 
             parse_address(args.address)
     elif (
