@@ -43,15 +43,9 @@ def reads(monkeypatch: pytest.MonkeyPatch) -> Iterator[Counter[str]]:
 
     monkeypatch.setattr(description, "_from_text", counted("robot", description._from_text))
     from_dict = LoopConfig.from_dict.__func__  # type: ignore[attr-defined]
-    monkeypatch.setattr(
-        LoopConfig,
-        "from_dict",
-        classmethod(lambda cls, *a, **kw: counted("loop", from_dict)(cls, *a, **kw)),
-    )
+    monkeypatch.setattr(LoopConfig, "from_dict", classmethod(counted("loop", from_dict)))
     parse = Mode.parse.__func__  # type: ignore[attr-defined]
-    monkeypatch.setattr(
-        Mode, "parse", classmethod(lambda cls, *a, **kw: counted("mode", parse)(cls, *a, **kw))
-    )
+    monkeypatch.setattr(Mode, "parse", classmethod(counted("mode", parse)))
     yield counts
 
 
