@@ -878,3 +878,24 @@ def test_a_dead_far_end_ends_run_at_the_time_limit(tmp_path):
     summary = json.loads(out.strip().splitlines()[-1])
     assert summary["stopped_by"] == "robot-lost" and summary["outcome"] == "none"
     assert 4.0 * 30 * 0.8 <= summary["ticks"] <= 4.0 * 30 * 1.1, summary["ticks"]
+
+
+def test_quick_bench_reports_the_links_latency():
+    """`dsteleop bench --only link --quick`: robot-sim on a free port driven for 10 s, the
+    latency's percentiles and the counts in its JSON (the figures themselves are for
+    docs/link.md, never asserted: this machine is shared)."""
+    r = subprocess.run(
+        [*CLI, "bench", "--only", "link", "--quick"], capture_output=True, text=True, timeout=300
+    )
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    link = out["link"]
+    assert link["seconds"] == 10.0 and link["rate_hz"] == 30.0
+    assert link["endpoint"].startswith("tcp/127.0.0.1:")
+    lat = link["latency_ms"]
+    assert 0 < lat["p50"] <= lat["p95"] <= lat["p99"] <= lat["max"]
+    assert lat["n"] == link["applied"] and 0 < link["applied"] <= link["sent"]
+    assert link["sent"] >= 0.7 * 30 * 10
+    assert 0 < link["near_apply_us"]["median"] <= link["near_apply_us"]["p99"]
+    assert 0 <= link["state_age_ms"]["p50"] <= link["state_age_ms"]["p99"]
+    assert len(out["machine"]["load_average"]) == 3 and out["machine"]["cores"] >= 1
