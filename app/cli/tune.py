@@ -46,13 +46,13 @@ from typing import TYPE_CHECKING, Any, Literal
 from dsteleop.app.cli.options import arbitration_config
 from dsteleop.app.cli.world_options import add_world_arguments, world_overrides
 from dsteleop.app.outpaths import created_dir, output_dir
-from dsteleop.app.progress import Progress
+from dsteleop.app.tasks.progress import Progress
 from dsteleop.errors import ConfigError, InputError
 
 if TYPE_CHECKING:  # the command imports them when it runs (an instant --help)
     import optuna
 
-    from dsteleop.app.tune.cluster import RayExecutor
+    from dsteleop.app.tasks.cluster import RayExecutor
     from dsteleop.app.tune.driver import TrialRecord, TuneSettings
     from dsteleop.app.tune.edges import Edge
 
@@ -246,7 +246,7 @@ def _sessions(items: list[str] | tuple[str, ...], option: str) -> list[str]:
 
 def command(args: argparse.Namespace) -> TuneCommand:
     """The command's settings; bad values raise ConfigError or InputError with one line."""
-    from dsteleop.app.tune.cluster import parse_address
+    from dsteleop.app.tasks.cluster import parse_address
     from dsteleop.app.tune.space import parse_space
 
     given: dict[str, Any] = {}
@@ -273,7 +273,7 @@ def command(args: argparse.Namespace) -> TuneCommand:
     if args.sessions is not None:
         given["sessions"] = _sessions(args.sessions, "--sessions")
     if args.config is not None or args.param:
-        base, _ = arbitration_config(args)
+        base = arbitration_config(args)
         given["base"] = base.to_dict()
     if args.trials is not None and args.trials < 1:
         raise ConfigError(f"--trials must be >= 1, got {args.trials}")
@@ -375,8 +375,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(cmd: TuneCommand, out: Path, t_start: float) -> int:
+    from dsteleop.app.tasks.cluster import RayExecutor
     from dsteleop.app.tune import driver
-    from dsteleop.app.tune.cluster import RayExecutor
     from dsteleop.app.tune.edges import widen
     from dsteleop.app.tune.holdout import HoldoutError
     from dsteleop.app.tune.space import out_of_domain

@@ -20,7 +20,7 @@ paper's statistics (`dsteleop.arbitration.metrics`):
     verdict        `DS wins` / `DS loses` where McNemar's exact p < 0.05 (the sign of the
                    difference), otherwise `tie`
 
-Cells run as Ray tasks (`app.tune.cluster.RayExecutor`: a local cluster on 127.0.0.1, or an
+Cells run as Ray tasks (`app.tasks.cluster.RayExecutor`: a local cluster on 127.0.0.1, or an
 existing one at `--address`); each finished cell is written at once to DIR/cells/<cell>.json
 (with the settings that define it), so a stopped sweep resumes where it was (`--resume`
 skips the cells whose file is there with the same settings). Nothing of the computation
@@ -53,6 +53,7 @@ from dsteleop.app.study.batch import run_chunk
 from dsteleop.app.study.planar import SimConfig
 from dsteleop.app.study.results import merge
 from dsteleop.app.study.summary import censored
+from dsteleop.app.tasks.executor import Cluster, TaskError
 from dsteleop.arbitration import ArbitrationConfig, metrics
 from dsteleop.errors import ConfigError, InputError
 
@@ -383,7 +384,7 @@ def run_sweep(
     cfg: SimConfig,
     grid: Grid,
     out: Path,
-    executor: Callable[[], Any],
+    executor: Callable[[], Cluster],
     on_cell: Callable[[str, bool], None] | None = None,
     design: str = "grid",
     configs: dict[str, CellConfig] | None = None,
@@ -418,8 +419,6 @@ def run_sweep(
     cluster: dict[str, Any] | None = None
     start_s = 0.0
     if todo:
-        from dsteleop.app.tune.driver import TaskError
-
         t1 = time.perf_counter()
         with executor() as ex:
             start_s = time.perf_counter() - t1
@@ -666,8 +665,8 @@ def run_command(
     """
     import sys
 
-    from dsteleop.app.progress import Progress
-    from dsteleop.app.tune.cluster import RayExecutor, check_reachable
+    from dsteleop.app.tasks.cluster import RayExecutor, check_reachable
+    from dsteleop.app.tasks.progress import Progress
 
     check_out(out, resume)
     check_reachable(address)
