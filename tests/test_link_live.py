@@ -5,6 +5,7 @@ child process, processes killed with SIGKILL. No fakes for the link."""
 from __future__ import annotations
 
 import json
+import logging
 import socket
 import subprocess
 import sys
@@ -625,15 +626,56 @@ def test_both_ends_meet_behind_a_router_and_peer_to_peer(tmp_path, setup):
     assert not any(n for d in summary["dropped_stray"].values() for n in d.values()), summary
 
 
+def _client(endpoint: str) -> Any:
+    """A Zenoh client session connected to `endpoint` only."""
+    import zenoh
+
+    c = zenoh.Config()
+    c.insert_json5("mode", '"client"')
+    c.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    c.insert_json5("scouting/multicast/enabled", "false")
+    return zenoh.open(c)
+
+
+class _Reliable:
+    """A publisher of one type on one topic with rmw_zenoh's attachment, as `Topic`, but
+    reliable (blocks rather than drops under congestion), so a test counts every message it
+    sent, and it can wait until the topic's subscriptions are matched."""
+
+    def __init__(self, session: Any, topic: str, ros_type: str) -> None:
+        import zenoh
+
+        self.key = ros.key_expr(0, topic, ros_type)
+        self.gid = ros.gid(str(session.zid()), topic, ros_type)
+        self._pub = session.declare_publisher(
+            self.key, congestion_control=zenoh.CongestionControl.BLOCK
+        )
+
+    def matched(self) -> bool:
+        return bool(self._pub.matching_status.matching)
+
+    def put(self, payload: bytes, seq: int, stamp_ns: int) -> None:
+        att = ros.encode_attachment(ros.Attachment(seq, stamp_ns, self.gid))
+        self._pub.put(payload, attachment=att)
+
+    def put_bare(self, payload: bytes) -> None:
+        """Without the attachment."""
+        self._pub.put(payload)
+
+
 def _stray_publishers(session: Any, topic: str) -> list[tuple[str, Any]]:
     """One stray message of each kind on `topic` (a PoseStamped topic): (its drop reason,
-    a function that sends it)."""
+    a function that sends it), once their publishers are matched to the topic's subscription
+    (at most 10 s). The stray pose is 20 cm from the robot's home palm."""
     ts = ros.typestore()
     string = "std_msgs/msg/String"
-    wrong = Topic(session, 0, topic, ros.JOINT_STATE)
-    text = Topic(session, 0, topic, string)
-    pose = Topic(session, 0, topic, ros.POSE_STAMPED)
-    p, R = np.array([0.58, 0.30, 0.50]), np.diag([-1.0, 1.0, -1.0])
+    wrong = _Reliable(session, topic, ros.JOINT_STATE)
+    text = _Reliable(session, topic, string)
+    pose = _Reliable(session, topic, ros.POSE_STAMPED)
+    t_end = time.monotonic() + 10.0
+    while not all(x.matched() for x in (wrong, text, pose)) and time.monotonic() < t_end:
+        time.sleep(0.05)
+    p, R = np.array([0.58, 0.10, 0.50]), np.diag([-1.0, 1.0, -1.0])
     seq = iter(range(10**6, 2 * 10**6))
 
     def now() -> int:
@@ -657,7 +699,7 @@ def _stray_publishers(session: Any, topic: str) -> list[tuple[str, Any]]:
         pose.put(data[: len(data) // 2], next(seq), s)
 
     def no_attachment() -> None:
-        session.put(pose.key, ros.encode_pose(p, R, "base", now()))
+        pose.put_bare(ros.encode_pose(p, R, "base", now()))
 
     return [
         ("wrong_type", joint_state),
@@ -677,11 +719,10 @@ def test_stray_messages_at_the_far_end_are_dropped_counted_and_logged(tmp_path):
     cfg = link_file(tmp_path, port)
     far = Far(cfg)
     config = LinkConfig()
-    session = open_session(Endpoints(connect=(f"tcp/127.0.0.1:{port}",)), 5.0, "stray")
-    good = Topic(session, 0, config.topics.command_pose, ros.POSE_STAMPED)
+    session = _client(f"tcp/127.0.0.1:{port}")
+    good = _Reliable(session, config.topics.command_pose, ros.POSE_STAMPED)
     strays = _stray_publishers(session, config.topics.command_pose)
     p, R = np.array([0.58, 0.30, 0.50]), np.diag([-1.0, 1.0, -1.0])
-    time.sleep(0.5)  # the subscriptions reach the far end
     rounds = 4
     try:
         seq = 0
@@ -696,7 +737,6 @@ def test_stray_messages_at_the_far_end_are_dropped_counted_and_logged(tmp_path):
         assert far.proc.poll() is None, "".join(far.lines)  # still running
         summary = far.terminate()
     finally:
-        good.close()
         session.close()
         if far.proc.poll() is None:
             far.kill()
@@ -708,7 +748,9 @@ def test_stray_messages_at_the_far_end_are_dropped_counted_and_logged(tmp_path):
         "refused": rounds,
     }
     assert sum(summary["dropped_stray"][config.topics.command_fingers].values()) == 0
-    assert summary["applied"] == rounds * len(strays)  # every good command, none of the rest
+    # the good commands between them are applied (two that come together, when a busy
+    # machine starves robot-sim, count as one: the newest wins); the strays none (above)
+    assert 0.75 * rounds * len(strays) <= summary["applied"] <= rounds * len(strays), summary
     logged = [ln for ln in far.lines if ": dropped (" in ln]
     assert len(logged) == 4, logged  # one per reason: the rest came within 5 s
     assert any("carries sensor_msgs::msg::dds_::JointState_" in ln for ln in logged), logged
@@ -716,36 +758,41 @@ def test_stray_messages_at_the_far_end_are_dropped_counted_and_logged(tmp_path):
     assert "Traceback" not in "".join(far.lines)
 
 
-def test_stray_messages_at_the_near_end_are_dropped_and_counted(tmp_path):
+def test_stray_messages_at_the_near_end_are_dropped_and_counted(tmp_path, caplog):
     """The same strays on the palm pose state topic, and a JointState without the robot's
-    joints on the joints topic, while robot-sim publishes good states: the near end drops
-    and counts them, its state stays the far end's (frame "base", fresh), never an error."""
+    joints on the joints topic, while robot-sim publishes good states: the near end drops,
+    counts and logs them, its state stays the far end's (frame "base", fresh), never an
+    error."""
+    caplog.set_level(logging.WARNING, logger="dsteleop.app.link.session")
     port = free_port()
     cfg = link_file(tmp_path, port)
     far = Far(cfg)
     config = LinkConfig()
     robot = ZenohRobot(read_link_config(cfg))
-    session = open_session(Endpoints(connect=(f"tcp/127.0.0.1:{port}",)), 5.0, "stray")
+    # anyone in the graph, e.g. a ROS 2 tool: a Zenoh client of the far end, opened here
+    # without the link's own session code
+    session = _client(f"tcp/127.0.0.1:{port}")
     strays = _stray_publishers(session, config.topics.state_pose)
-    joints = Topic(session, 0, config.topics.state_joints, ros.JOINT_STATE)
+    joints = _Reliable(session, config.topics.state_joints, ros.JOINT_STATE)
     try:
         t0 = time.monotonic()
         st = robot.reset(0.0)
-        time.sleep(0.5)  # the stray publishers reach the near end (through the far end)
         for k in range(3):
             for _, send in strays:
                 send()
                 stamp = time.time_ns()
                 joints.put(ros.encode_joints(("elbow",), np.zeros(1), stamp), 10**6 + k, stamp)
-                now = time.monotonic() - t0
-                s = robot.state(now)
+                s = robot.state(time.monotonic() - t0)  # never an error, never a stray
                 assert s is not None and np.linalg.norm(s.X.position - st.X.position) < 0.01
-                assert robot.link_status(now) == ""
                 time.sleep(0.03)
         time.sleep(0.2)
         dropped = robot.dropped
+        # the far end's states went on coming (a busy machine may delay one past 0.2 s)
+        t_end = time.monotonic() + 2.0
+        while robot.link_status(time.monotonic() - t0) != "":
+            assert time.monotonic() < t_end, robot.link_status(time.monotonic() - t0)
+            time.sleep(0.01)
     finally:
-        joints.close()
         session.close()
         robot.close()
         far.terminate()
@@ -756,6 +803,11 @@ def test_stray_messages_at_the_near_end_are_dropped_and_counted(tmp_path):
         "refused": 3,
     }
     assert dropped[config.topics.state_joints]["refused"] == 15
+    # logged: the first of each reason on each topic (the rest came within 5 s)
+    logged = [r.getMessage() for r in caplog.records if ": dropped (" in r.getMessage()]
+    assert len(logged) == 5, logged
+    assert sum(config.topics.state_joints in m for m in logged) == 1, logged
+    assert any("lacks joint " in m and "of robot iiwa" in m for m in logged), logged
 
 
 def test_a_dead_far_end_ends_run_after_robot_lost_s(tmp_path):
@@ -804,12 +856,13 @@ def test_a_dead_far_end_ends_run_after_robot_lost_s(tmp_path):
 
 
 def test_a_dead_far_end_ends_run_at_the_time_limit(tmp_path):
-    """With a long `--robot-lost-s`, `--time-limit` still ends a run whose robot is lost:
-    at the limit, exit code 3 and the reason."""
+    """With `--robot-lost-s` at its default (5 s, longer than what is left of the trial),
+    `--time-limit` still ends a run whose robot is lost: at the limit, exit code 3 and the
+    reason (issue 33, problem 8: this run went on for 150 s and exited 0)."""
     cfg = link_file(tmp_path, free_port())
     far = Far(cfg)
     run = subprocess.Popen(
-        [*CLI, "run", "--robot", f"zenoh:{cfg}", "--time-limit", "4", "--robot-lost-s", "60"],
+        [*CLI, "run", "--robot", f"zenoh:{cfg}", "--time-limit", "4"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -833,3 +886,24 @@ def test_a_dead_far_end_ends_run_at_the_time_limit(tmp_path):
     summary = json.loads(out.strip().splitlines()[-1])
     assert summary["stopped_by"] == "robot-lost" and summary["outcome"] == "none"
     assert 4.0 * 30 * 0.8 <= summary["ticks"] <= 4.0 * 30 * 1.1, summary["ticks"]
+
+
+def test_quick_bench_reports_the_links_latency():
+    """`dsteleop bench --only link --quick`: robot-sim on a free port driven for 10 s, the
+    latency's percentiles and the counts in its JSON (the figures themselves are for
+    docs/link.md, never asserted: this machine is shared)."""
+    r = subprocess.run(
+        [*CLI, "bench", "--only", "link", "--quick"], capture_output=True, text=True, timeout=300
+    )
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    link = out["link"]
+    assert link["seconds"] == 10.0 and link["rate_hz"] == 30.0
+    assert link["endpoint"].startswith("tcp/127.0.0.1:")
+    lat = link["latency_ms"]
+    assert 0 < lat["p50"] <= lat["p95"] <= lat["p99"] <= lat["max"]
+    assert lat["n"] == link["applied"] and 0 < link["applied"] <= link["sent"]
+    assert link["sent"] >= 0.7 * 30 * 10
+    assert 0 < link["near_apply_us"]["median"] <= link["near_apply_us"]["p99"]
+    assert 0 <= link["state_age_ms"]["p50"] <= link["state_age_ms"]["p99"]
+    assert len(out["machine"]["load_average"]) == 3 and out["machine"]["cores"] >= 1

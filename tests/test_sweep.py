@@ -415,7 +415,7 @@ def test_tune_sweep_merges_the_modes_best_files_as_both_json() -> None:
         path = Path(os.environ.get("TMPDIR", "/tmp")) / f"tune_sweep_{os.getpid()}_{name}.json"
         path.write_text(json.dumps(d))
         try:
-            return config_from_file(path, [])[0]
+            return config_from_file(path, [])
         finally:
             path.unlink()
 

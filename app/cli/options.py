@@ -34,10 +34,11 @@ import argparse
 import json
 import logging
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from dsteleop.app.compose.options import LoopOptions
+from dsteleop.app.compose.options import LoopOptions, RobotSpec
 from dsteleop.app.loop import LoopConfig, LostPolicy
 from dsteleop.app.outpaths import check_output_file, output_dir, output_file
 from dsteleop.app.rrd.target import DEFAULT_ADDR, RerunTarget
@@ -133,21 +134,34 @@ def parse_params(items: list[str]) -> dict[str, Any]:
     return out
 
 
-def arbitration_config(args: argparse.Namespace) -> tuple[ArbitrationConfig, dict[str, Any]]:
-    """The arbitration config of --config and --param, and the loop fields of --config
-    (checked here, whether or not the command uses them)."""
-    return config_from_file(args.config, args.param)
+@dataclass(frozen=True)
+class Configuration:
+    """A configuration file with `--param` on top, parsed once (`configuration`).
+
+    Attributes:
+        arbitration: the arbitration configuration.
+        loop: the file's loop section over the defaults, with `arbitration`.
+        loop_fields: the loop fields the file set (a default it repeats counts as set).
+    """
+
+    arbitration: ArbitrationConfig
+    loop: LoopConfig
+    loop_fields: frozenset[str]
 
 
-def config_from_file(
-    path: Path | None, params: list[str], option: str = "--config"
-) -> tuple[ArbitrationConfig, dict[str, Any]]:
-    """The arbitration config of the file `path` (`read_config_file`; None: the defaults)
-    with the `--param` items `params` on top, and the file's loop fields (checked)."""
+def arbitration_config(args: argparse.Namespace) -> ArbitrationConfig:
+    """The arbitration config of --config and --param (the file's loop section checked
+    too, whether or not the command uses it)."""
+    return configuration(args.config, args.param).arbitration
+
+
+def configuration(path: Path | None, params: list[str], option: str = "--config") -> Configuration:
+    """The configuration of the file `path` (`read_config_file`; None: the defaults) with
+    the `--param` items `params` on top; `option` names the file's option in the errors."""
     arb, loop = read_config_file(path, option)
     try:
         cfg = ArbitrationConfig.from_dict({**arb, **parse_params(params)})
-        LoopConfig.from_dict({**loop, "arbitration": cfg.to_dict()})
+        loop_cfg = LoopConfig.from_dict(loop, arbitration=cfg)
     except TypeError as exc:
         where = "configuration" if option == "--config" else f"{option} {path}"
         raise ConfigError(f"{where}: {exc}") from None
@@ -155,7 +169,14 @@ def config_from_file(
         if option == "--config":
             raise
         raise ConfigError(f"{option} {path}: {exc}") from None
-    return cfg, loop
+    return Configuration(cfg, loop_cfg, frozenset(loop))
+
+
+def config_from_file(
+    path: Path | None, params: list[str], option: str = "--config"
+) -> ArbitrationConfig:
+    """The arbitration configuration of `configuration(path, params, option)`."""
+    return configuration(path, params, option).arbitration
 
 
 def add_video_options(parser: argparse.ArgumentParser) -> None:
@@ -314,7 +335,7 @@ def add_loop_options(
 def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOptions:
     """The checked loop options (`reset_after_s`: the command's default for --reset-after)."""
     check_loop_bounds(args.rate, args.goal_noise, args.input_delay)  # the flags, named
-    arb, loop_file = arbitration_config(args)
+    config = configuration(args.config, args.param)
     flags: dict[str, Any] = {}
     if args.mode is not None:
         flags["mode"] = Mode.parse(args.mode)
@@ -326,13 +347,12 @@ def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOp
         flags["lost_policy"] = LostPolicy(args.lost_policy)
     if args.reset_after is not None:
         flags["reset_after_s"] = args.reset_after
-    elif "reset_after_s" not in loop_file:
+    elif "reset_after_s" not in config.loop_fields:
         flags["reset_after_s"] = reset_after_s
     limit = args.time_limit
     if limit is not None and not (math.isfinite(limit) and limit > 0):
         raise ConfigError(f"--time-limit must be > 0 seconds, got {limit}")
-    base = LoopConfig.from_dict({**loop_file, "arbitration": arb.to_dict()})
-    loop = base.replace(**flags)
+    loop = config.loop.replace(**flags)
     # Rate and delay as the loop will run (a --config file's loop section may set them too).
     check_loop_bounds(loop.rate_hz, args.goal_noise, loop.input_delay_s)
     if args.seed < 0:
@@ -344,7 +364,7 @@ def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOp
             "no pixels); record a webcam or a video source, or leave --record-video out"
         )
     history = check_history_path(args.history)
-    check_robot(args.robot)
+    robot = check_robot(args.robot)
     if args.record_lerobot is not None:
         from dsteleop.app.lerobot import check_out_dir
 
@@ -353,7 +373,7 @@ def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOp
         source=source,
         loop=loop,
         utensil=args.utensil,
-        robot=args.robot,
+        robot=robot,
         seed=args.seed,
         goal_noise_m=args.goal_noise,
         record=args.record,
@@ -371,28 +391,17 @@ def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOp
             else RerunTarget(args.rerun, args.rerun_connect)
         ),
         history=history,
-        input_delay_given=args.input_delay is not None or "input_delay_s" in loop_file,
+        input_delay_given=args.input_delay is not None or "input_delay_s" in config.loop_fields,
     )
 
 
-def check_robot(robot: str) -> None:
+def check_robot(robot: str) -> RobotSpec:
     """`--robot NAME|FILE` names a valid robot description (read and checked against its
     URDF now, before anything runs or records); `--robot zenoh:CONFIG` a valid link
-    configuration file and its robot's description.
-
-    Raises:
-        InputError: an unknown name, a missing or malformed file, a link or joint its URDF
-            does not have (one line).
-        ConfigError: a link configuration's field out of its domain.
+    configuration file and its robot's description: the robot, read once
+    (`RobotSpec.parse`, which raises the one-line errors).
     """
-    from dsteleop.app.link.config import link_config_path, read_link_config
-    from dsteleop.robot.description import load_description
-
-    link = link_config_path(robot)
-    if link is not None:
-        read_link_config(link).for_robot()
-    else:
-        load_description(robot)
+    return RobotSpec.parse(robot)
 
 
 def check_loop_bounds(

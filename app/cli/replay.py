@@ -178,7 +178,7 @@ def command(args: argparse.Namespace) -> ReplayCommand:
         raise ConfigError(f"--workers must be >= 1, got {args.workers}")
     arb: ArbitrationConfig | None = None
     if args.config is not None or args.param:
-        arb, _ = arbitration_config(args)
+        arb = arbitration_config(args)
     rerun: Path | None = None
     if args.rerun is not None:
         from dsteleop.app.rrd.target import check_rrd_path

@@ -32,7 +32,6 @@ from typing import Any
 from dsteleop.app.cli.options import add_loop_options, check_video_complete, loop_options
 from dsteleop.app.cli.signals import StopOnSignal
 from dsteleop.app.compose.options import LoopOptions
-from dsteleop.app.link.config import link_config_path
 from dsteleop.errors import ConfigError, RobotLostError
 
 log = logging.getLogger(__name__)
@@ -95,7 +94,7 @@ def command(args: argparse.Namespace) -> RunCommand:
     if not (math.isfinite(args.robot_lost_s) and args.robot_lost_s > 0):
         raise ConfigError(f"--robot-lost-s must be > 0 seconds, got {args.robot_lost_s}")
     live = options.source.kind in ("webcam", "auto")
-    linked = link_config_path(options.robot) is not None
+    linked = options.robot.linked
     # A linked robot's physics keeps its own clock: the loop runs in real time.
     return RunCommand(
         options,

@@ -167,13 +167,13 @@ def command(args: argparse.Namespace) -> SimCommand:
     from dsteleop.app.study.run import workers_for
 
     modes = (
-        all_modes()
+        all_modes(inference=args.world == "objects")
         if args.modes is None
         else tuple(Mode.parse(s.strip()) for s in str(args.modes).split(","))
     )
     if args.cell_configs is not None and args.config is not None:
         raise ConfigError("--config and --cell-configs are mutually exclusive")
-    arb, _ = arbitration_config(args)
+    arb = arbitration_config(args)
     if args.operator not in OPERATORS:
         raise ConfigError(
             f"unknown operator {args.operator!r} (choose from {', '.join(OPERATORS)})"
@@ -263,7 +263,7 @@ def read_cell_configs(
     out: dict[str, Any] = {}
     for name in names:
         path = folder / f"{name}.json"
-        arb, _ = config_from_file(path, params, "--cell-configs")
+        arb = config_from_file(path, params, "--cell-configs")
         try:
             digest = hashlib.sha256(path.read_bytes()).hexdigest()
         except OSError as exc:

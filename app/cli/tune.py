@@ -230,7 +230,7 @@ def command(args: argparse.Namespace) -> TuneCommand:
     if args.sessions is not None:
         given["sessions"] = _sessions(args.sessions, "--sessions")
     if args.config is not None or args.param:
-        base, _ = arbitration_config(args)
+        base = arbitration_config(args)
         given["base"] = base.to_dict()
     if args.trials is not None and args.trials < 1:
         raise ConfigError(f"--trials must be >= 1, got {args.trials}")

@@ -3,17 +3,64 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from dsteleop.app.link.config import LinkConfig, link_config_path, read_link_config
 from dsteleop.app.loop import LoopConfig
 from dsteleop.app.rrd.target import RerunTarget
+from dsteleop.robot.description import RobotDescription, load_description
 from dsteleop.tracking.sources import SourceSpec, parse_source
 
 #: A live session (`serve`) resets the task this long after each outcome, for the next
 #: trial [s] (`--reset-after`).
 RESET_AFTER_S = 4.0
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    """`--robot NAME|FILE|zenoh:CONFIG`, read once: the robot's description (checked against
+    its URDF), and the link's configuration when the robot is at the far end of a Zenoh link
+    (docs/link.md).
+
+    Attributes:
+        description: the robot's description (a linked robot's: the one its link names).
+        link: the link's configuration (its fingers and limits filled in from the
+            description), or None for a simulated robot.
+        link_file: the link's configuration file, or None.
+    """
+
+    description: RobotDescription
+    link: LinkConfig | None = None
+    link_file: Path | None = None
+
+    @classmethod
+    def parse(cls, text: str) -> RobotSpec:
+        """The robot `--robot` names (a shipped name, a description file, or zenoh:CONFIG).
+
+        Raises:
+            InputError: an unknown name, a missing or malformed file, a link or joint its
+                URDF does not have (one line).
+            ConfigError: a link configuration's field out of its domain.
+        """
+        link_file = link_config_path(text)
+        if link_file is None:
+            return cls(load_description(text))
+        link, description = read_link_config(link_file).for_robot()
+        return cls(description, link, link_file)
+
+    @property
+    def linked(self) -> bool:
+        """The robot is at the far end of a link."""
+        return self.link is not None
+
+    def __str__(self) -> str:
+        return f"zenoh:{self.link_file}" if self.link_file is not None else self.description.name
+
+
+def _iiwa() -> RobotSpec:
+    return RobotSpec.parse("iiwa")
 
 
 @dataclass(frozen=True)
@@ -24,7 +71,7 @@ class LoopOptions:
         source: the hand source.
         loop: the loop configuration (mode, rate, lost policy, arbitration, ...).
         utensil: the utensil to pick.
-        robot: the robot (`--robot`): a shipped description's name or a description file.
+        robot: the robot (`--robot`), read.
         seed: seed of the goal noise and the demo operator.
         goal_noise_m: goal position noise [m] (None: the task's default).
         record: the session folder (run) or root (serve), or None.
@@ -45,7 +92,7 @@ class LoopOptions:
     source: SourceSpec
     loop: LoopConfig
     utensil: str = "spoon"
-    robot: str = "iiwa"
+    robot: RobotSpec = field(default_factory=_iiwa)
     seed: int = 0
     goal_noise_m: float | None = None
     record: Path | None = None
@@ -60,6 +107,15 @@ class LoopOptions:
     input_delay_given: bool = False
 
     @classmethod
-    def of(cls, source: str = "demo", loop: LoopConfig | None = None, **kw: Any) -> LoopOptions:
-        """Options for code (benches, tests): a source in the `--source` grammar."""
-        return cls(parse_source(source), loop or LoopConfig(), **kw)
+    def of(
+        cls,
+        source: str = "demo",
+        loop: LoopConfig | None = None,
+        robot: str | RobotSpec = "iiwa",
+        **kw: Any,
+    ) -> LoopOptions:
+        """Options for code (benches, tests): a source in the `--source` grammar, a robot as
+        `--robot` names it (or read)."""
+        if isinstance(robot, str):
+            robot = RobotSpec.parse(robot)
+        return cls(parse_source(source), loop or LoopConfig(), robot=robot, **kw)
