@@ -5,6 +5,7 @@ child process, processes killed with SIGKILL. No fakes for the link."""
 from __future__ import annotations
 
 import json
+import logging
 import socket
 import subprocess
 import sys
@@ -757,10 +758,12 @@ def test_stray_messages_at_the_far_end_are_dropped_counted_and_logged(tmp_path):
     assert "Traceback" not in "".join(far.lines)
 
 
-def test_stray_messages_at_the_near_end_are_dropped_and_counted(tmp_path):
+def test_stray_messages_at_the_near_end_are_dropped_and_counted(tmp_path, caplog):
     """The same strays on the palm pose state topic, and a JointState without the robot's
-    joints on the joints topic, while robot-sim publishes good states: the near end drops
-    and counts them, its state stays the far end's (frame "base", fresh), never an error."""
+    joints on the joints topic, while robot-sim publishes good states: the near end drops,
+    counts and logs them, its state stays the far end's (frame "base", fresh), never an
+    error."""
+    caplog.set_level(logging.WARNING, logger="dsteleop.app.link.session")
     port = free_port()
     cfg = link_file(tmp_path, port)
     far = Far(cfg)
@@ -800,6 +803,11 @@ def test_stray_messages_at_the_near_end_are_dropped_and_counted(tmp_path):
         "refused": 3,
     }
     assert dropped[config.topics.state_joints]["refused"] == 15
+    # logged: the first of each reason on each topic (the rest came within 5 s)
+    logged = [r.getMessage() for r in caplog.records if ": dropped (" in r.getMessage()]
+    assert len(logged) == 5, logged
+    assert sum(config.topics.state_joints in m for m in logged) == 1, logged
+    assert any("lacks joint " in m and "of robot iiwa" in m for m in logged), logged
 
 
 def test_a_dead_far_end_ends_run_after_robot_lost_s(tmp_path):

@@ -167,7 +167,7 @@ def command(args: argparse.Namespace) -> SimCommand:
     from dsteleop.app.study.run import workers_for
 
     modes = (
-        all_modes()
+        all_modes(inference=args.world == "objects")
         if args.modes is None
         else tuple(Mode.parse(s.strip()) for s in str(args.modes).split(","))
     )
