@@ -52,9 +52,10 @@ import numpy as np
 from dsteleop.app.operator.world import Impairments
 from dsteleop.app.study import sweep_report
 from dsteleop.app.study.batch import run_chunk
+from dsteleop.app.study.objects import MAX_OBJECTS
 from dsteleop.app.study.planar import SimConfig
 from dsteleop.app.study.results import merge
-from dsteleop.app.study.summary import censored
+from dsteleop.app.study.summary import censored, versus
 from dsteleop.app.tasks.executor import Cluster, TaskError
 from dsteleop.arbitration import ArbitrationConfig, metrics
 from dsteleop.errors import ConfigError, InputError
@@ -64,6 +65,13 @@ SCHEMA = "dsteleop.sim_sweep/1"
 CHUNK = 250
 #: The grid's axes: name on the command line -> field of `Impairments` [unit].
 AXES: dict[str, str] = {"goal": "goal_sigma_m", "delay": "delay_s", "depth": "depth_sigma_m"}
+#: The objects world's two more axes (`axes_of`): the robot's perception error along its view
+#: [m] (the lateral one keeps its ratio to it) and the number of objects, as the fields of
+#: `Objects` they set.
+OBJECT_AXES: dict[str, str] = {
+    "perception": "objects.perception_depth_m",
+    "objects": "objects.count",
+}
 #: Levels above 0 of an axis whose default is 0 (no literature value set yet): goal noise
 #: [m], delay [s], depth error [m]. An axis with a default d > 0 has the levels 0, d, 2 d.
 FALLBACK_LEVELS: dict[str, tuple[float, float]] = {
@@ -79,48 +87,70 @@ ALPHA = 0.05
 DESIGNS: tuple[str, ...] = ("grid", "axes")
 
 
+def axes_of(cfg: SimConfig | None = None) -> dict[str, str]:
+    """The axes of a study's world: `AXES`, and in the objects world `OBJECT_AXES` too."""
+    if cfg is None or cfg.objects is None:
+        return dict(AXES)
+    return {**AXES, **OBJECT_AXES}
+
+
 @dataclass(frozen=True)
 class Grid:
-    """The levels of each axis (`AXES`); the cells are their product, goal-major."""
+    """The levels of each axis (`axes_of` the world, in that order); the cells are their
+    product, the first axis slowest."""
 
     levels: dict[str, tuple[float, ...]]
 
     def cells(self) -> list[tuple[float, ...]]:
-        """Every (goal, delay, depth) of the grid."""
+        """Every (goal, delay, depth[, perception, objects]) of the grid."""
         out: list[tuple[float, ...]] = [()]
-        for axis in AXES:
+        for axis in self.levels:
             out = [(*c, v) for c in out for v in self.levels[axis]]
         return out
 
     def to_dict(self) -> dict[str, list[float]]:
-        return {axis: list(self.levels[axis]) for axis in AXES}
+        return {axis: list(v) for axis, v in self.levels.items()}
 
 
-def default_levels(axis: str) -> tuple[float, ...]:
-    """0, the default d of `Impairments` and 2 d; 0 and `FALLBACK_LEVELS` when d is 0."""
+def default_levels(axis: str, cfg: SimConfig | None = None) -> tuple[float, ...]:
+    """0, the default d of `Impairments` and 2 d; 0 and `FALLBACK_LEVELS` when d is 0. In
+    the objects world (`cfg.objects`) the impairments keep the study's one value (their map
+    is the told-goal world's), the perception error has 0, d and 2 d of the world's, and the
+    number of objects K - 1, K and K + 2."""
+    if cfg is not None and cfg.objects is not None:
+        o = cfg.objects
+        if axis == "perception":
+            d = o.perception_depth_m
+            return (0.0, d, 2.0 * d) if d > 0 else (0.0, 0.02, 0.04)
+        if axis == "objects":
+            return tuple(float(k) for k in (o.count - 1, o.count, o.count + 2) if k >= 1)
+        return (float(getattr(cfg.world, AXES[axis])),)
     d = float(getattr(Impairments(), AXES[axis]))
     return (0.0, d, 2.0 * d) if d > 0 else (0.0, *FALLBACK_LEVELS[axis])
 
 
-def default_grid() -> Grid:
-    return Grid({axis: default_levels(axis) for axis in AXES})
+def default_grid(cfg: SimConfig | None = None) -> Grid:
+    return Grid({axis: default_levels(axis, cfg) for axis in axes_of(cfg)})
 
 
-def parse_grid(specs: Sequence[str]) -> Grid:
-    """A grid from `AXIS=V1,V2,...` specs; an axis not given keeps its default levels.
+def parse_grid(specs: Sequence[str], cfg: SimConfig | None = None) -> Grid:
+    """A grid from `AXIS=V1,V2,...` specs over the axes of `cfg`'s world (`axes_of`); an axis
+    not given keeps its default levels.
 
     Raises:
         ConfigError: an unknown or repeated axis, a value that is not a finite number >= 0,
-            no value, or a repeated value (one line).
+            no value, or a repeated value; a number of objects that is not a whole number
+            in [1, 9] (one line).
     """
-    levels = {axis: default_levels(axis) for axis in AXES}
+    axes = axes_of(cfg)
+    levels = {axis: default_levels(axis, cfg) for axis in axes}
     seen: set[str] = set()
     for spec in specs:
         axis, sep, values = spec.partition("=")
         axis = axis.strip()
-        if not sep or axis not in AXES:
+        if not sep or axis not in axes:
             raise ConfigError(
-                f"--sweep {spec!r}: expected AXIS=V1,V2,... with AXIS one of {', '.join(AXES)}"
+                f"--sweep {spec!r}: expected AXIS=V1,V2,... with AXIS one of {', '.join(axes)}"
             )
         if axis in seen:
             raise ConfigError(f"--sweep: axis {axis!r} given twice")
@@ -135,20 +165,35 @@ def parse_grid(specs: Sequence[str]) -> Grid:
                 raise ConfigError(f"--sweep {spec!r}: levels must be finite and >= 0, got {v}")
             if v in out:
                 raise ConfigError(f"--sweep {spec!r}: level {v:g} given twice")
+            if axis == "objects" and not (v == int(v) and 1 <= v <= MAX_OBJECTS):
+                raise ConfigError(
+                    f"--sweep {spec!r}: a number of objects must be a whole number in "
+                    f"[1, {MAX_OBJECTS}], got {v:g}"
+                )
             out.append(v)
         levels[axis] = tuple(out)
     return Grid(levels)
 
 
 def cell_name(cell: Sequence[float]) -> str:
-    """The cell's file name stem, e.g. `goal0.02_delay0.15_depth0`."""
-    return "_".join(f"{axis}{v:g}" for axis, v in zip(AXES, cell, strict=True))
+    """The cell's file name stem, e.g. `goal0.02_delay0.15_depth0` (the objects world's
+    `..._perception0.02_objects3`)."""
+    names = list(AXES) if len(cell) == len(AXES) else [*AXES, *OBJECT_AXES]
+    return "_".join(f"{axis}{v:g}" for axis, v in zip(names, cell, strict=True))
+
+
+def _field(cfg: SimConfig, path: str) -> float:
+    """The value of an axis's field (`AXES`: of `cfg.world`; `OBJECT_AXES`: `objects.<f>`)."""
+    if path.startswith("objects."):
+        assert cfg.objects is not None
+        return float(getattr(cfg.objects, path.removeprefix("objects.")))
+    return float(getattr(cfg.world, path))
 
 
 def centre(cfg: SimConfig) -> tuple[float, ...]:
-    """The world's own (goal, delay, depth) (`cfg.world`): the cell the `axes` design varies
-    one impairment at a time from."""
-    return tuple(float(getattr(cfg.world, f)) for f in AXES.values())
+    """The world's own (goal, delay, depth[, perception, objects]) (`cfg.world`, `cfg.objects`):
+    the cell the `axes` design varies one impairment at a time from."""
+    return tuple(_field(cfg, f) for f in axes_of(cfg).values())
 
 
 def design_cells(grid: Grid, design: str, middle: Sequence[float]) -> list[tuple[float, ...]]:
@@ -168,7 +213,7 @@ def design_cells(grid: Grid, design: str, middle: Sequence[float]) -> list[tuple
     cells = grid.cells()
     if design == "grid":
         return cells
-    for axis, v in zip(AXES, middle, strict=True):
+    for axis, v in zip(grid.levels, middle, strict=True):
         if v not in grid.levels[axis]:
             levels = ", ".join(f"{x:g}" for x in grid.levels[axis])
             raise ConfigError(
@@ -205,9 +250,19 @@ def cell_study(cfg: SimConfig, name: str, configs: dict[str, CellConfig] | None)
 
 
 def with_world(cfg: SimConfig, cell: Sequence[float]) -> SimConfig:
-    """The study `cfg` in the world of `cell` (its other impairments kept)."""
-    world = cfg.world.replace(**{f: float(v) for f, v in zip(AXES.values(), cell, strict=True)})
+    """The study `cfg` in the world of `cell` (its other impairments kept; in the objects world
+    the perception error along the view and, in proportion, across it, and the number of
+    objects)."""
+    world = cfg.world.replace(**{f: float(v) for f, v in zip(AXES.values(), cell, strict=False)})
     changes: dict[str, Any] = {"world": world}
+    if len(cell) > len(AXES):
+        o = cfg.objects
+        assert o is not None
+        depth, count = float(cell[len(AXES)]), int(cell[len(AXES) + 1])
+        ratio = o.perception_lateral_m / o.perception_depth_m if o.perception_depth_m > 0 else 0.25
+        changes["objects"] = dataclasses.replace(
+            o, perception_depth_m=depth, perception_lateral_m=ratio * depth, count=count
+        )
     if "goal_sigma_m" in {f.name for f in dataclasses.fields(SimConfig)}:
         # Until the study reads its goal noise from `world` (the impairments' mechanisms),
         # the goal axis sets the field it reads today.
@@ -248,7 +303,7 @@ def cell_task(cfg: SimConfig, cell: Sequence[float]) -> dict[str, Any]:
         }
     return {
         "schema": SCHEMA,
-        "cell": dict(zip(AXES.values(), map(float, cell), strict=True)),
+        "cell": dict(zip(axes_of(cfg).values(), map(float, cell), strict=True)),
         "world": c.world.to_dict(),
         "settings": settings(cfg),
         "modes": modes,
@@ -312,6 +367,14 @@ def summarise_cell(data: dict[str, Any]) -> dict[str, Any]:
             "time_ratio_ci95": [math.exp(logd.ci_low), math.exp(logd.ci_high)],
             "verdict": verdict,
         }
+    if "DSC" in per:  # the objects world: DSC against every other mode (app.study.summary)
+        out["dsc_versus"] = {
+            m: {**versus(success["DSC"], success[m], times["DSC"], times[m])}
+            for m in per
+            if m != "DSC"
+        }
+        for v in out["dsc_versus"].values():
+            v["verdict"] = v["verdict"].replace("a ", "DSC ")
     return out
 
 
@@ -451,7 +514,7 @@ def run_sweep(
     summary = {
         "schema": SCHEMA,
         "grid": grid.to_dict(),
-        "axes": dict(AXES),
+        "axes": axes_of(cfg),
         "trajectories": cfg.trajectories,
         "seed": cfg.seed,
         "modes": [m.value for m in cfg.modes],
@@ -469,9 +532,13 @@ def run_sweep(
         "config": settings(cfg),
         "world": cfg.world.to_dict(),
     }
+    if any("dsc_versus" in c for c in summaries):
+        summary["dsc_counts"] = _dsc_counts(summaries)
+    if cfg.objects is not None:
+        summary["objects"] = cfg.objects.to_dict()
     if design != "grid":
         summary["design"] = design
-        summary["centre"] = dict(zip(AXES.values(), centre(cfg), strict=True))
+        summary["centre"] = dict(zip(axes_of(cfg).values(), centre(cfg), strict=True))
     if configs is not None:
         # Each cell has its own arbitration (its file and hash per cell, the parameters in
         # DIR/cells/<cell>.json): the study's one is none of them.
@@ -488,6 +555,15 @@ def _counts(cells: Sequence[dict[str, Any]]) -> dict[str, int]:
         d = c.get("ds_minus_best_scalar")
         if d is not None:
             out[d["verdict"]] += 1
+    return out
+
+
+def _dsc_counts(cells: Sequence[dict[str, Any]]) -> dict[str, dict[str, int]]:
+    """Per mode DSC was set against: the cells where DSC wins, ties and loses."""
+    out: dict[str, dict[str, int]] = {}
+    for c in cells:
+        for m, v in c.get("dsc_versus", {}).items():
+            out.setdefault(m, {"DSC wins": 0, "tie": 0, "DSC loses": 0})[v["verdict"]] += 1
     return out
 
 
