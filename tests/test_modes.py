@@ -404,7 +404,7 @@ def test_every_command_with_param_accepts_ds_cap(command: str, args: tuple[str, 
     if command == "sim":
         cfg = cmd.study.arbitration
     elif command == "tune":
-        cfg = ArbitrationConfig.from_dict(cmd.given["base"])
+        cfg = ArbitrationConfig.from_dict(cmd.plan.given["base"])
     else:
         cfg = cmd.options.loop.arbitration
     p = cfg.params_of("DS")

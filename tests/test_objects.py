@@ -14,7 +14,7 @@ from dsteleop.app.cli.main import main
 from dsteleop.app.operator.closed_loop import Intention
 from dsteleop.app.operator.world import Impairments
 from dsteleop.app.study import planar as sc
-from dsteleop.app.study import report, results, summary
+from dsteleop.app.study import report, results, summary, sweep
 from dsteleop.app.study.batch import run_chunk
 from dsteleop.app.study.inference import RowBeliefs, draw_runs, map_stats
 from dsteleop.app.study.objects import Objects
@@ -307,3 +307,33 @@ def test_bad_objects_options_are_one_line_and_exit_2(
     rc = main(["sim", "--no-progress", "--trajectories", "2", "--out", f"{tmp_path}/o", *args])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "Traceback" not in err[0], err
+
+
+# --- the sweep's two more axes -----------------------------------------------------------------
+
+
+def test_the_objects_world_sweeps_the_perception_error_and_the_number_of_objects() -> None:
+    """Its grid has two more axes (the told-goal impairments at the world's one value): the
+    perception error along the view at 0, d, 2 d (the lateral kept in its ratio) and K - 1,
+    K, K + 2 objects; the axes design is the centre and those four cells; a cell's world sets
+    them; the told-goal grid is as it was."""
+    cfg = objects_config(4)
+    g = sweep.default_grid(cfg)
+    assert list(g.levels) == ["goal", "delay", "depth", "perception", "objects"]
+    assert g.levels["perception"] == (0.0, 0.02, 0.04) and g.levels["objects"] == (2.0, 3.0, 5.0)
+    assert g.levels["goal"] == (0.0,) and g.levels["delay"] == (0.2,)
+    mid = sweep.centre(cfg)
+    assert mid == (0.0, 0.2, 0.015, 0.02, 3.0)
+    cells = sweep.design_cells(g, "axes", mid)
+    assert len(cells) == 5 and mid in cells
+    assert sweep.cell_name(mid) == "goal0_delay0.2_depth0.015_perception0.02_objects3"
+    c = sweep.with_world(cfg, (0.0, 0.2, 0.015, 0.04, 5.0))
+    assert c.objects is not None and c.objects.count == 5
+    assert c.objects.perception_depth_m == 0.04
+    assert c.objects.perception_lateral_m == pytest.approx(0.01)
+    assert list(sweep.default_grid().levels) == list(sweep.AXES)
+    assert len(sweep.default_grid().cells()) == 27
+    with pytest.raises(ConfigError, match="whole number"):
+        sweep.parse_grid(["objects=2.5"], cfg)
+    with pytest.raises(ConfigError, match=r"AXIS one of goal, delay, depth$"):
+        sweep.parse_grid(["objects=2"])

@@ -183,7 +183,7 @@ def command(args: argparse.Namespace) -> SimCommand:
     if args.sweep is not None:
         from dsteleop.app.study.sweep import parse_grid
 
-        sweep = parse_grid(args.sweep)
+        sweep = parse_grid(args.sweep, SimConfig(**extra))
         if args.address is not None:
             from dsteleop.app.tasks.cluster import parse_address
 
