@@ -19,19 +19,19 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from dsteleop.app import outputs as output_registry
 from dsteleop.app.compose.options import LoopOptions
 from dsteleop.app.inputs.demo import DemoCamera, DemoConfig, DemoOperator, demo_source
 from dsteleop.app.inputs.tracked import TrackedHandInput
 from dsteleop.app.loop import TeleopLoop
 from dsteleop.app.loop.timing import ManualClock, MonotonicClock
+from dsteleop.app.outputs import OutputContext
 from dsteleop.app.plants.kitchen import KitchenTask, simulated_kitchen
-from dsteleop.app.ports import Observer, Robot, Task
-from dsteleop.app.session.video import FrameRecorder
+from dsteleop.app.ports import Observer, Output, Robot, Task
 from dsteleop.app.session.writer import HistoryFile
 from dsteleop.errors import ConfigError
 from dsteleop.tracking.mapping import MappingConfig, WorkspaceMapping
@@ -57,28 +57,38 @@ class Built:
         source: the resolved source.
         video: the video file behind the hand, when the source is one (its `partial`,
             `end_note()` once it ended).
-        rerun: the Rerun logger observing the loop, when asked for (`--rerun`).
+        outputs: the outputs opened for the loop, by name (`app.outputs`), in the
+            registry's order.
     """
 
     loop: TeleopLoop
     demo: DemoOperator | None
     source: SourceSpec
     video: VideoFileSource | None = None
-    rerun: Any = None
-    dataset: Any = None
+    outputs: dict[str, Output] = field(default_factory=dict)
 
     def close(self) -> None:
-        """Close the loop (the recording, the source, the robot), then the live dataset (its
-        last episodes written) and the Rerun logger."""
+        """Close the loop (the recording, the source, the robot), then each output (a live
+        dataset's last episodes written, the Rerun log flushed), in order."""
         try:
             self.loop.close()
         finally:
-            try:
-                if self.dataset is not None:
-                    self.dataset.close()
-            finally:
-                if self.rerun is not None:
-                    self.rerun.close()
+            _close_all(list(self.outputs.values()))
+
+    def summaries(self) -> dict[str, Any]:
+        """What each output says it wrote, by name (those with something to say)."""
+        said = {name: out.summary() for name, out in self.outputs.items()}
+        return {name: s for name, s in said.items() if s is not None}
+
+
+def _close_all(outputs: list[Output]) -> None:
+    """Close every output, in order, each even when an earlier one failed."""
+    if not outputs:
+        return
+    try:
+        outputs[0].close()
+    finally:
+        _close_all(outputs[1:])
 
 
 def hand_mapping(fields: dict[str, Any]) -> MappingConfig | None:
@@ -141,11 +151,12 @@ def build(
             options = dataclasses.replace(
                 options, loop=dataclasses.replace(options.loop, input_delay_s=world.delay_s)
             )
+    asked = [k for k in output_registry.registered() if k.name in options.outputs]
     task_options: dict[str, Any] = {
         "utensil": options.utensil,
         "seed": options.seed,
         "goal_noise_m": goal_noise_m,
-        "export_scene": export_scene or options.rerun is not None,
+        "export_scene": export_scene or any(k.wants_scene for k in asked),
         "time_limit_s": options.time_limit_s,
         "control_dt_s": options.loop.dt_s,  # the world keeps the loop's time
     }
@@ -169,17 +180,13 @@ def build(
             desc.name,
             options.robot.link_file,
         )
-    rerun: Any = None
-    dataset: Any = None
+    opened: dict[str, Output] = {}
     try:
         task.reset()
         start = robot.reset(0.0).X
         demo: DemoOperator | None = None
-        frames: FrameRecorder | None = None
         video: VideoFileSource | None = None
         if spec.kind == "demo":
-            if options.record_video:
-                log.warning("--record-video: the demo has no camera frames; no video is recorded")
             demo = DemoOperator(
                 task.true_goals,
                 start,
@@ -195,9 +202,19 @@ def build(
             )
             if isinstance(source, VideoFileSource):
                 video = source
-            if options.record_video:
-                frames = FrameRecorder(source)
-                source = frames
+        pixels = spec.kind != "demo"
+        context = OutputContext(
+            task,
+            options.loop.rate_hz,
+            options.record,
+            pixels,
+            frames=pixels and output_registry.FRAMES in options.outputs,
+        )
+        for k in asked:
+            out = k.open(options.outputs[k.name], context)
+            if out is not None:
+                opened[k.name] = out
+                source = out.wrap_source(source)
         delay = options.loop.input_delay_s
         if realtime:
             # Opened (and the model loaded) now; capture starts with the loop's first tick,
@@ -210,23 +227,6 @@ def build(
             )
         history = None if options.history is None else HistoryFile(options.history)
         meta: dict[str, Any] = {"source_kind": spec.kind, "seed": options.seed}
-        if options.rerun is not None:
-            from dsteleop.app.rrd.live import RerunLogger
-
-            name = options.record.name if options.record is not None else None
-            rerun = RerunLogger(
-                options.rerun,
-                name or time.strftime("live-%Y%m%d-%H%M%S"),
-                scene=task.scene(),
-                plant_meta=task.describe(),
-            )
-            observers = (*observers, rerun)
-        if options.record_lerobot is not None:
-            from dsteleop.app.lerobot.live import LiveDataset
-
-            dataset = LiveDataset(
-                options.record_lerobot, round(options.loop.rate_hz), camera=frames is not None
-            )
         loop = TeleopLoop(
             options.loop,
             hand,
@@ -235,17 +235,15 @@ def build(
             clock=MonotonicClock() if realtime else ManualClock(0.0),
             observers=(*((demo,) if demo is not None else ()), *observers),
             history_file=history,
-            frame_recorder=frames,
+            outputs=tuple(opened.values()),
             record_root=record_root,
             meta=meta,
-            episode_sink=None if dataset is None else dataset.put,
         )
     except BaseException:
-        robot.close()
-        task.close()
-        if rerun is not None:
-            rerun.close()
-        if dataset is not None:
-            dataset.close()
+        try:
+            robot.close()
+            task.close()
+        finally:
+            _close_all(list(opened.values()))
         raise
-    return Built(loop, demo, spec, video, rerun, dataset)
+    return Built(loop, demo, spec, video, opened)
