@@ -12,6 +12,12 @@ without an edit to them: `run`'s and `serve`'s options, the checked settings (a 
 one line and exit 2), the composition (opened with the task, the scene exported for it, the
 camera's frames recorded for it), the loop (every tick, each session's start and stop, each
 recorded episode), `run`'s summary line and the close.
+
+Sources: a hand input that is not a camera, defined and registered here, reaches every
+consumer likewise: the `--source` grammar of `run` and `serve` (and their help), its checks
+(no target where it takes none; no video to record from it), the composition (opened with
+the task and the robot's start, its hand driving the loop, its world's defaults applied),
+`run` (headless unless live), the session's metadata and the page's label of it.
 """
 
 from __future__ import annotations
@@ -27,7 +33,7 @@ from typing import Any
 
 import pytest
 
-from dsteleop.app import outputs
+from dsteleop.app import outputs, sources
 from dsteleop.app.cli import serve
 from dsteleop.app.cli.main import COMMANDS, main
 from dsteleop.app.cli.options import add_loop_options, loop_options
@@ -39,9 +45,13 @@ from dsteleop.app.outputs import OutputBase, OutputContext, OutputKind
 from dsteleop.app.session.episodes import Episode
 from dsteleop.app.session.reader import read_session
 from dsteleop.app.session.schema import TickRecord
+from dsteleop.app.sources import Defaults, Opened, SourceContext, SourceKind
+from dsteleop.app.viewer.panel import source_label
 from dsteleop.arbitration import Mode
 from dsteleop.errors import ConfigError
 from dsteleop.robot import description
+from dsteleop.tracking.sources import SourceSpec
+from tests.fakes import ScriptedHand
 
 
 def _parse(*argv: str) -> argparse.Namespace:
@@ -221,3 +231,76 @@ def test_an_unknown_or_twice_registered_output_is_a_config_error(tally: OutputKi
         outputs.kind("nope")
     with pytest.raises(ConfigError, match="registered already"):
         outputs.register(TALLY)
+
+
+# --- a source of this file: a hand of its own, held where the robot starts ------------------
+
+
+class StillHand(ScriptedHand):
+    """A hand that is no camera: it holds the robot's start pose (through its own delay)."""
+
+    def describe(self) -> str:
+        return "a still hand (test)"
+
+
+def _open_still(spec: SourceSpec, ctx: SourceContext) -> Opened:
+    start = ctx.X_start
+    return Opened(hand=StillHand(lambda t: start, input_delay_s=ctx.input_delay_s))
+
+
+STILL = SourceKind(
+    "still",
+    "still",
+    _open_still,
+    label=lambda spec: "still hand",
+    defaults=lambda seed: Defaults(goal_noise_m=0.0, input_delay_s=0.05),
+)
+
+
+@pytest.fixture
+def still() -> Iterator[SourceKind]:
+    kind = sources.register(STILL)
+    try:
+        yield kind
+    finally:
+        sources.unregister(kind)
+
+
+def test_a_source_from_a_test_file_is_everywhere(still: SourceKind) -> None:
+    assert sources.kind("still") is still and sources.parse(" still ") == SourceSpec("still")
+    assert "or still" in sources.grammar()
+    for command in ("run", "serve"):
+        parser = _parser(command)
+        assert "still" in parser.format_help()
+        assert loop_options(parser.parse_args(["--source", "still"])).source.kind == "still"
+    assert source_label(SourceSpec("still")) == "still hand"
+    with pytest.raises(ConfigError, match="takes no target"):
+        sources.parse("still:x")
+
+
+def test_a_run_is_driven_by_a_new_source(
+    still: SourceKind, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = ["run", "--source", "still", "--max-seconds", "1", "--record", str(tmp_path / "s")]
+    assert main(argv) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["source"] == "still" and summary["ticks"] == 30
+    assert summary["timing"]["headless"] is True  # not live: run on the manual clock
+    session = read_session(tmp_path / "s")
+    assert (
+        session.meta["source_kind"] == "still" and session.meta["source"] == "a still hand (test)"
+    )
+    # Its world's defaults, where the command line said nothing.
+    assert session.meta["loop"]["input_delay_s"] == 0.05
+    assert session.meta["plant"]["goal_noise_m"] == 0.0
+    # The hand was seen (after its delay) and held still: the robot stayed near its start.
+    held = [r for r in session.records if r.hand is not None and r.hand.X_human is not None]
+    assert len(held) >= 25
+
+
+def test_a_source_without_pixels_records_no_video(
+    still: SourceKind, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["run", "--source", "still", "--record-video"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--record-video: --source still has no camera frames" in err[0]

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from dsteleop.app import outputs
+from dsteleop.app import outputs, sources
 from dsteleop.app.compose.options import LoopOptions, RobotSpec
 from dsteleop.app.loop import LoopConfig, LostPolicy
 from dsteleop.app.outpaths import check_output_file, output_dir, output_file
@@ -47,10 +47,8 @@ from dsteleop.arbitration import ArbitrationConfig, Mode, registered
 from dsteleop.errors import ConfigError, InputError
 from dsteleop.tracking.sources import (
     ROTATIONS_DEG,
-    SOURCE_GRAMMAR,
     VideoFileSource,
     check_rotation,
-    parse_source,
 )
 
 log = logging.getLogger(__name__)
@@ -224,7 +222,7 @@ def add_loop_options(
     parser: argparse.ArgumentParser, default_source: str, record_help: str
 ) -> None:
     """Options shared by `run` and `serve` (`record_help`: what `--record DIR` means there)."""
-    parser.add_argument("--source", default=default_source, help=f"{SOURCE_GRAMMAR}")
+    parser.add_argument("--source", default=default_source, help=sources.grammar())
     parser.add_argument(
         "--mode",
         default=None,
@@ -330,12 +328,12 @@ def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOp
     check_loop_bounds(loop.rate_hz, args.goal_noise, loop.input_delay_s)
     if args.seed < 0:
         raise ConfigError(f"--seed must be >= 0, got {args.seed}")
-    source = parse_source(args.source)
+    source = sources.parse(args.source)
     history = check_history_path(args.history)
     robot = check_robot(args.robot)
     # Each output's settings, checked before a camera or the robot is opened; an output that
     # reads the camera's frames (a dataset) has them recorded when the source has any.
-    asked = outputs.parse(args, source, pixels=source.kind != "demo")
+    asked = outputs.parse(args, source, pixels=sources.kind(source.kind).pixels)
     return LoopOptions(
         source=source,
         loop=loop,

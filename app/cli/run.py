@@ -29,6 +29,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+from dsteleop.app import sources
 from dsteleop.app.cli.options import add_loop_options, check_video_complete, loop_options
 from dsteleop.app.cli.signals import StopOnSignal
 from dsteleop.app.compose.options import LoopOptions
@@ -94,7 +95,7 @@ def command(args: argparse.Namespace) -> RunCommand:
         raise ConfigError(f"--max-seconds must be > 0, got {args.max_seconds}")
     if not (math.isfinite(args.robot_lost_s) and args.robot_lost_s > 0):
         raise ConfigError(f"--robot-lost-s must be > 0 seconds, got {args.robot_lost_s}")
-    live = options.source.kind in ("webcam", "auto")
+    live = sources.kind(options.source.kind).live  # a camera: only in real time
     linked = options.robot.linked
     # A linked robot's physics keeps its own clock: the loop runs in real time.
     return RunCommand(

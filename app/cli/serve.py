@@ -35,10 +35,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from dsteleop.app import sources
 from dsteleop.app.cli.options import add_loop_options, check_video_complete, loop_options
 from dsteleop.app.cli.signals import StopOnSignal
 from dsteleop.app.compose.options import RESET_AFTER_S, LoopOptions
-from dsteleop.app.inputs.demo import DemoConfig
 from dsteleop.app.outputs import session_root
 from dsteleop.errors import ConfigError
 
@@ -140,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
                 arbitration=loop.config.arbitration,
                 source=source_label(spec),
                 mapping=hand_mapping(loop.hand.mapping_config()),
-                info={"world": DemoConfig().describe()} if spec.kind == "demo" else None,
+                info=sources.kind(spec.kind).info(),
             )
             if opts.record is not None or needed is not None:
                 utensil = str(loop.task.describe().get("utensil", "task"))

@@ -8,10 +8,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from dsteleop.app import sources
 from dsteleop.app.link.config import LinkConfig, link_config_path, read_link_config
 from dsteleop.app.loop import LoopConfig
 from dsteleop.robot.description import RobotDescription, load_description
-from dsteleop.tracking.sources import SourceSpec, parse_source
+from dsteleop.tracking.sources import SourceSpec
 
 #: A live session (`serve`) resets the task this long after each outcome, for the next
 #: trial [s] (`--reset-after`).
@@ -115,4 +116,4 @@ class LoopOptions:
         `--robot` names it (or read), the outputs by name with their settings."""
         if isinstance(robot, str):
             robot = RobotSpec.parse(robot)
-        return cls(parse_source(source), loop or LoopConfig(), robot=robot, **kw)
+        return cls(sources.parse(source), loop or LoopConfig(), robot=robot, **kw)

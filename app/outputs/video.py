@@ -8,6 +8,7 @@ import logging
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from dsteleop.app import sources
 from dsteleop.app.outputs import OutputBase, OutputContext, OutputKind
 from dsteleop.errors import ConfigError
 
@@ -27,13 +28,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def parse(args: argparse.Namespace, source: SourceSpec) -> bool | None:
-    """True when asked for; the demo is refused (its synthetic hand has no pixels)."""
+    """True when asked for; a source without pixels is refused (the demo's synthetic hand,
+    an input that is not a camera)."""
     if not args.record_video:
         return None
-    if source.kind == "demo":
+    if not sources.kind(source.kind).pixels:
         raise ConfigError(
-            "--record-video: the demo has no camera frames to record (its synthetic hand has "
-            "no pixels); record a webcam or a video source, or leave --record-video out"
+            f"--record-video: --source {source} has no camera frames to record (no pixels); "
+            "record a webcam or a video source, or leave --record-video out"
         )
     return True
 
@@ -62,7 +64,7 @@ class VideoOutput(OutputBase):
 
 def open_output(setting: bool, ctx: OutputContext) -> VideoOutput | None:
     if not ctx.pixels:
-        log.warning("--record-video: the demo has no camera frames; no video is recorded")
+        log.warning("--record-video: the source has no camera frames; no video is recorded")
         return None
     return VideoOutput()
 
