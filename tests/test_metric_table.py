@@ -75,6 +75,8 @@ def test_the_table_holds_the_papers_metrics_in_table_is_order() -> None:
     assert m["time_s"].heading == "time [s]" and m["time_s"].test_key == "log_time"
     assert m["success"].summary_key == "success_rate" and m["success"].count_key == "successes"
     assert metric_table.tuning_key(m["cosine_distance"]) == "cosine_distance_per_action_mean"
+    tuning = [x.name for x in metric_table.tuning_order()]
+    assert tuning == ["success", "agreement", "cosine_distance", "time_s"]  # tuning's reports
 
 
 def test_a_bad_or_repeated_metric_is_refused(speed: Metric) -> None:
@@ -128,6 +130,7 @@ def test_a_new_metric_reaches_replay_runs_aggregates_and_tests(speed: Metric) ->
 def test_a_new_metric_can_be_tuned_on_and_reaches_every_tuning_output(
     speed: Metric, tmp_path: Path
 ) -> None:
+    assert metric_table.tuning_order()[-1] is speed
     objective = Objective(metric="speed")
     assert objective.direction == "minimize"
     assert "minimise DS's output speed [m/s]" in objective.statement()

@@ -264,6 +264,19 @@ def names() -> tuple[str, ...]:
     return tuple(_TABLE)
 
 
+#: Tuning's reports list the paper's metrics in this order: the constraint (success), the
+#: default objective (agreement), the other action metric, the time.
+_TUNING_ORDER: tuple[str, ...] = ("success", "agreement", "cosine_distance", "time_s")
+
+
+def tuning_order() -> tuple[Metric, ...]:
+    """Every metric in the order of tuning's results and reports (trials.csv's columns, a
+    trial's and the held-out tables, the figures' rows): the paper's in `_TUNING_ORDER`, then
+    those registered, in the table's order."""
+    first = [_TABLE[n] for n in _TUNING_ORDER]
+    return (*first, *(m for m in _TABLE.values() if m.name not in _TUNING_ORDER))
+
+
 def metric(name: str) -> Metric:
     """The metric called `name`.
 

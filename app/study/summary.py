@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from dsteleop.app.study.metric_table import Metric, table, tuning_key, variant_key
+from dsteleop.app.study.metric_table import Metric, table, tuning_key, tuning_order, variant_key
 from dsteleop.app.study.planar import (
     Array,
     SimConfig,
@@ -374,7 +374,7 @@ def fig8_divergences(
 
 def headline(r: ModeResult) -> dict[str, float]:
     """The headline numbers of one mode over its trajectories, flat (for tuning and tables),
-    per metric of the table (app/study/metric_table.py) in its order, then `gave_up`.
+    per metric of the table (app/study/metric_table.py) in tuning's order, then `gave_up`.
 
     Keys of a rate (`success`): its Laplace estimate under its name, its count
     (`successes`), `n` and its adjusted-Wald interval (`success_ci_low`/`_high`); of a log
@@ -384,7 +384,7 @@ def headline(r: ModeResult) -> dict[str, float]:
     (`<name>_ci_half`); `gave_up`: the share of trials the operator gave up.
     """
     out: dict[str, float] = {}
-    for m in table():
+    for m in tuning_order():
         x = r.values[tuning_key(m)]
         if m.scale == "rate":
             sr = metrics.success_rate(int(x.sum()), int(x.size))

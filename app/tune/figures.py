@@ -42,7 +42,8 @@ def write_sensitivity(
     """sensitivity.png (module docstring); returns its file name."""
     plt = _pyplot()
     done = [r for r in recs if r.state == "COMPLETE"]
-    rows = [(s, m) for s in settings.objective.sources for m in metric_table.names()]
+    names = [m.name for m in metric_table.tuning_order()]
+    rows = [(s, m) for s in settings.objective.sources for m in names]
     dims = settings.space
     tuned = settings.mode
     fig, axes = plt.subplots(
@@ -115,7 +116,7 @@ def write_heatmap(settings: TuneSettings, recs: Sequence[TrialRecord], out: Path
     dx, dy = settings.space
     tuned = settings.mode
     xs, ys = dx.grid(settings.grid_points), dy.grid(settings.grid_points)
-    names = metric_table.names()
+    names = [m.name for m in metric_table.tuning_order()]
     rows = [(s, m) for s in settings.objective.sources for m in names]
     fig, axes = plt.subplots(
         len(settings.objective.sources), len(names),

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from dsteleop.app.study.metric_table import table, tuning_key
+from dsteleop.app.study.metric_table import tuning_key, tuning_order
 from dsteleop.app.study.results import ModeResult, StudyResult, merge
 from dsteleop.app.study.summary import headline
 from dsteleop.app.tasks.executor import Executor, TaskError
@@ -137,7 +137,7 @@ def gains(a: ModeResult, b: ModeResult) -> dict[str, Any]:
     values tuning optimises (`tuning_key`): a rate's or a linear metric's mean difference
     with its t test; a log metric's as the ratio of geometric means (`<short>_ratio`)."""
     out: dict[str, Any] = {}
-    for m in table():
+    for m in tuning_order():
         k = tuning_key(m)
         x, y = a.values[k].astype(np.float64), b.values[k].astype(np.float64)
         if m.scale != "log":

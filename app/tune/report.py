@@ -31,10 +31,10 @@ SUMMARY_SCHEMA = "dsteleop.tune_summary/1"
 
 
 def order() -> tuple[str, ...]:
-    """Per-mode metric keys in report order: each metric of the table's with its count and
+    """Per-mode metric keys in report order: each metric in tuning's order with its count and
     interval (`app.study.summary.headline`), then `gave_up` (the rest follow alphabetically)."""
     out: list[str] = []
-    for m in metric_table.table():
+    for m in metric_table.tuning_order():
         out.append(m.name)
         if m.scale == "rate":
             out += [m.count_key, "n", f"{m.name}_ci_low", f"{m.name}_ci_high"]
@@ -159,7 +159,7 @@ def power(settings: TuneSettings, recs: Sequence[TrialRecord]) -> dict[str, Any]
 
     mode = settings.mode
     out: dict[str, Any] = {"trajectories": settings.batch.trajectories}
-    for m in metric_table.table():
+    for m in _intervals_first():
         if m.scale == "rate":
             lo, hi = med(f"study.{mode}.{m.name}_ci_low"), med(f"study.{mode}.{m.name}_ci_high")
             out[f"{m.name}_ci_half"] = None if lo is None or hi is None else (hi - lo) / 2.0
@@ -287,11 +287,16 @@ def markdown(summary: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _intervals_first() -> list[metric_table.Metric]:
+    """The metrics in tuning's order, those with a t interval (linear) before the rates."""
+    return sorted(metric_table.tuning_order(), key=lambda m: m.scale == "rate")
+
+
 def _widths(pw: Mapping[str, Any]) -> str:
     """`power`'s half-widths in words: "+-x for the success rate, ... and +-z for the ..."."""
     parts = [
         f"+-{_fmt(pw[f'{m.name}_ci_half'])} for the {m.label}"
-        for m in metric_table.table()
+        for m in _intervals_first()
         if f"{m.name}_ci_half" in pw
     ]
     return parts[0] if len(parts) == 1 else ", ".join(parts[:-1]) + " and " + parts[-1]
@@ -346,7 +351,7 @@ def _edges_md(summary: Mapping[str, Any]) -> list[str]:
 
 
 def _mode_table(metrics: Mapping[str, float], sources: Sequence[str], tuned: str) -> list[str]:
-    table = metric_table.table()
+    table = metric_table.tuning_order()
     rows = ["| source | mode | " + " | ".join(m.heading for m in table) + " |"]
     rows.append("| --- | --- |" + " --- |" * len(table))
     for s in sources:
@@ -389,7 +394,7 @@ def _holdout_md(h: Mapping[str, Any] | None, tuned: str) -> list[str]:
             f"the closed-loop study (seed {s['seed']}; {seen}), S and {tuned} paired; 95 % "
             "intervals:"
         )
-        table = metric_table.table()
+        table = metric_table.tuning_order()
         out += [
             "",
             "| configuration | mode | "

@@ -270,7 +270,7 @@ def sessions_metrics(runs: Sequence[Mapping[str, Any]], mode: str = "DS") -> dic
     out: dict[str, float] = {}
     for m in modes:
         a = agg[m.value]
-        for metric in metric_table.table():
+        for metric in metric_table.tuning_order():
             for name, v in _session_values(metric, a).items():
                 out[key("sessions", m.value, name)] = v
     out["sessions.seconds"] = float(sum(r.get("seconds", 0.0) for r in runs))
