@@ -1,7 +1,7 @@
 """The metric table: a metric defined and registered here, in a test file, reaches the study's
 summary, report and tests, tuning (objective, trials, trials.csv, hold-out, reports, figures)
-and replay's runs, aggregates and tests without an edit to them; the table holds the paper's
-four metrics with their directions and scales."""
+and replay's runs, aggregates and tests (`dsteleop replay`'s metrics.json) without an edit to
+them; the table holds the paper's four metrics with their directions and scales."""
 
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
+from dsteleop.app.cli.main import main
 from dsteleop.app.replay.core import aggregate, session_summary
 from dsteleop.app.session.trace import Trace
 from dsteleop.app.study import batch, metric_table, report, results, summary
@@ -64,6 +65,7 @@ def speed() -> Iterator[Metric]:
         metric_table.unregister(metric.name)
 
 
+ROOT = Path(__file__).resolve().parents[1]
 CFG = SimConfig(trajectories=4, seed=2, modes=(Mode.S, Mode.DS), attempts=1, max_paths=0)
 
 
@@ -125,6 +127,19 @@ def test_a_new_metric_reaches_replay_runs_aggregates_and_tests(speed: Metric) ->
     assert agg["DS"]["speed"] == pytest.approx(math.exp(float(np.mean(np.log(values)))))
     assert len(agg["DS"]["speed_ci95"]) == 2
     assert "p_value" in tests["S_vs_DS"]["speed_ttest"]
+
+
+def test_a_new_metric_reaches_the_replay_commands_metrics_json(
+    speed: Metric, tmp_path: Path
+) -> None:
+    sessions = [str(ROOT / "recordings" / f"demo-{m}-spoon") for m in ("S", "DS")]
+    argv = ["replay", *sessions, "--robot", "recorded", "--modes", "S,DS", "--no-plots"]
+    assert main([*argv, "--workers", "1", "--out", str(tmp_path)]) == 0
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    values = [e["modes"]["DS"]["speed"] for e in m["episodes"]]
+    assert len(values) == 2 and all(0 < v < 0.3 for v in values)
+    assert m["modes"]["DS"]["speed_arithmetic_mean"] == pytest.approx(float(np.mean(values)))
+    assert "p_value" in m["tests"]["S_vs_DS"]["speed_ttest"]
 
 
 def test_a_new_metric_can_be_tuned_on_and_reaches_every_tuning_output(
