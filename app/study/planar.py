@@ -56,8 +56,9 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from dsteleop.app.operator.closed_loop import ClosedLoopOperator, Intention, OperatorProfile
+from dsteleop.app.operator.closed_loop import ClosedLoopOperator
 from dsteleop.app.operator.open_loop import OperatorStrategy, OperatorTrajectory, sample_trajectory
+from dsteleop.app.operator.person import Intention, OperatorProfile
 from dsteleop.app.operator.world import Impairments
 from dsteleop.app.study.grasps import Grasps, settle_after
 from dsteleop.app.study.inference import ObjectRuns
