@@ -16,6 +16,7 @@ from dsteleop.app.cli.options import config_from_file
 from dsteleop.app.cli.world_options import add_world_arguments, world_overrides
 from dsteleop.app.study import batch, planar, results, sweep
 from dsteleop.app.study import summary as study_summary
+from dsteleop.app.study.objects import Objects
 from dsteleop.arbitration import Mode
 
 TUNED = Path(__file__).resolve().parents[1] / "docs" / "tuned"
@@ -23,7 +24,11 @@ CELL_FOLDERS = ("cells", "equal-count")
 
 
 def _configs() -> list[Path]:
-    return sorted(p for p in TUNED.rglob("*.json") if "runs" not in p.relative_to(TUNED).parts)
+    """The told-goal worlds' files (DS and the scalar; the objects world's: `OBJECTS`)."""
+    parts = ("runs", "objects")
+    return sorted(
+        p for p in TUNED.rglob("*.json") if not set(parts) & set(p.relative_to(TUNED).parts)
+    )
 
 
 def _disagreement_world() -> dict[str, Any]:
@@ -84,3 +89,35 @@ def test_the_tuned_disagreement_headline_holds_on_held_out_people() -> None:
     assert ds["successes_in"]["side"] >= 0.9 * ds["successes_in"]["top"] + 1
     assert s["success_rate"]["estimate"] <= 0.6
     assert d["scalar"]["prefers_other_grasp"]["success_rate"]["estimate"] >= 0.8
+
+
+OBJECTS = TUNED / "objects"
+
+
+def test_the_objects_worlds_files_give_each_tuned_mode_its_own_configuration() -> None:
+    """docs/tuned/README.md, the objects world (the centre and the 4 cm perception cell, 32
+    trials each): DSC, DS, conf_scalar and the scalar each run held out with what they tuned,
+    on the same people: the fields they share (kappa, p, q, b, window) from each mode's own
+    section, the caps and levers from the merged arbitration."""
+    from dsteleop.app.cli.sim import study_configuration
+
+    world = planar.SimConfig().world.replace(goal_sigma_m=0.0)  # as `--world objects` sets it
+    cfg = planar.SimConfig(objects=Objects(), world=world)
+    cells = {
+        sweep.cell_name(c)
+        for c in sweep.design_cells(sweep.default_grid(cfg), "axes", sweep.centre(cfg))
+    }
+    files = sorted(OBJECTS.glob("*.json"))
+    assert files and {p.stem for p in files} <= cells
+    for path in files:
+        arb, own = study_configuration(path, [])
+        data = json.loads(path.read_text())
+        assert set(data["objective"]) == {"DSC", "DS", "conf_scalar", "scalar"}, path
+        by_mode = {m.value: a for m, a in own}
+        for mode, found in data["objective"].items():
+            assert found["trial"] is not None and found["value"] > 0.5, (path, mode)
+            for name, value in found["params"].items():
+                assert by_mode[mode].to_dict()[name] == value, (path, mode, name)
+        assert arb.params_of("DSC").power == data["objective"]["DSC"]["params"]["DSC.power"]
+        study = planar.SimConfig(objects=Objects(), arbitration=arb, mode_arbitration=own)
+        assert study.arbitration_of(Mode.DSC) == by_mode["DSC"]
