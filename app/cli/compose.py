@@ -131,11 +131,15 @@ def build(
     )
     # The demo person works in the operator's world (docs/operator.md): the task's goal noise
     # and the link's command delay come from it, unless given on the command line.
-    demo_config = DemoConfig(seed=options.seed)
+    change_to, change_at_s = options.change_mind or (None, DemoConfig.change_at_s)
+    demo_config = DemoConfig(seed=options.seed, change_to=change_to, change_at_s=change_at_s)
     goal_noise_m = options.goal_noise_m
     if spec.kind == "demo":
         world = demo_config.world
-        if goal_noise_m is None:
+        if goal_noise_m is None and not options.infer:
+            # A told goal's isotropic noise; a robot that infers its goal perceives the
+            # candidates through its camera (`robot.perception`: the world's 2 cm along the
+            # camera's ray only, 5 mm across it).
             goal_noise_m = world.goal_sigma_m
         if not options.input_delay_given and options.loop.input_delay_s == 0.0:
             options = dataclasses.replace(
@@ -143,6 +147,7 @@ def build(
             )
     task_options: dict[str, Any] = {
         "utensil": options.utensil,
+        "infer": options.infer,
         "seed": options.seed,
         "goal_noise_m": goal_noise_m,
         "export_scene": export_scene or options.rerun is not None,

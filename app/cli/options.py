@@ -7,7 +7,8 @@
                          as best.json, with its "objective", "world", "note" and
                          "schema" as a record of the tuning, not applied: a command's own
                          world options choose its world); --param applies on top of it
-    loop options         --source, --mode, --utensil, --seed, --goal-noise, --input-delay,
+    loop options         --source, --mode, --goal, --utensil, --change-mind, --seed, --goal-noise,
+                         --input-delay,
                          --rate, --lost-policy, --history, --record, --record-video,
                          --rerun, --rerun-connect: run and serve
 
@@ -218,7 +219,25 @@ def add_loop_options(
         "(docs/link.md); default iiwa",
     )
     parser.add_argument(
-        "--utensil", default="spoon", help="utensil to pick (spoon, spatula, ladle)"
+        "--goal",
+        default=None,
+        metavar="infer|UTENSIL",
+        help="what the robot is told: a utensil (spoon, spatula, ladle), or infer: it is told "
+        "none and infers the person's from the hand's motion among the utensils in the holder "
+        "(docs/METHOD.md §10); default: told the --utensil",
+    )
+    parser.add_argument(
+        "--utensil",
+        default=None,
+        help="the utensil the person picks (spoon, spatula, ladle; default spoon): the demo "
+        "person's; with a told --goal it must be that one",
+    )
+    parser.add_argument(
+        "--change-mind",
+        default=None,
+        metavar="UTENSIL:S",
+        help="the demo person turns to UTENSIL S seconds into each trial, while it still "
+        "reaches (with --goal infer; docs/operator.md)",
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of goal noise and demo operator")
     parser.add_argument(
@@ -319,7 +338,12 @@ class LoopOptions:
     Attributes:
         source: the hand source.
         loop: the loop configuration (mode, rate, lost policy, arbitration, ...).
-        utensil: the utensil to pick.
+        utensil: the utensil the person picks (the demo person's; told to the robot unless
+            `goal` is "infer"); "" before `resolve_goal`: spoon, or the told goal.
+        goal: what the robot is told: "infer" (nothing: it keeps a belief over the utensils,
+            `loop.inference`) or the utensil; "" before `resolve_goal`: the utensil.
+        change_mind: the demo person turns to this utensil this many seconds into each
+            trial (`DemoConfig.change_to`, `change_at_s`), or None.
         robot: the robot (`--robot`): a shipped description's name or a description file.
         seed: seed of the goal noise and the demo operator.
         goal_noise_m: goal position noise [m] (None: the task's default).
@@ -340,7 +364,9 @@ class LoopOptions:
 
     source: SourceSpec
     loop: LoopConfig
-    utensil: str = "spoon"
+    utensil: str = ""
+    goal: str = ""
+    change_mind: tuple[str, float] | None = None
     robot: str = "iiwa"
     seed: int = 0
     goal_noise_m: float | None = None
@@ -355,10 +381,52 @@ class LoopOptions:
     history: Path | None = None
     input_delay_given: bool = False
 
+    def __post_init__(self) -> None:
+        goal, utensil = resolve_goal(self.goal or None, self.utensil or None)
+        object.__setattr__(self, "goal", goal)
+        object.__setattr__(self, "utensil", utensil)
+        if self.change_mind is not None:
+            check_change_mind(self.change_mind, self.source.kind, goal, utensil)
+
+    @property
+    def infer(self) -> bool:
+        """The robot is not told its utensil."""
+        return self.goal == "infer"
+
     @classmethod
     def of(cls, source: str = "demo", loop: LoopConfig | None = None, **kw: Any) -> LoopOptions:
         """Options for code (benches, tests): a source in the `--source` grammar."""
         return cls(parse_source(source), loop or LoopConfig(), **kw)
+
+
+def resolve_goal(goal: str | None, utensil: str | None) -> tuple[str, str]:
+    """(`--goal`, `--utensil`) as (what the robot is told: "infer" or a utensil, the person's
+    utensil): without `--goal` the robot is told the person's utensil (default spoon); a
+    told goal is the person's utensil too.
+
+    Raises:
+        ConfigError: an unknown utensil or candidate, or a told goal that is not the
+            person's utensil (one line).
+    """
+    from dsteleop.app.plants.kitchen import INFER
+    from dsteleop.robot.world import UTENSIL_NAMES
+
+    if utensil is not None and utensil not in UTENSIL_NAMES:
+        raise ConfigError(
+            f"--utensil: unknown utensil {utensil!r} (choose from {', '.join(UTENSIL_NAMES)})"
+        )
+    if goal is None:
+        return utensil or "spoon", utensil or "spoon"
+    if goal != INFER and goal not in UTENSIL_NAMES:
+        raise ConfigError(
+            f"--goal: unknown candidate {goal!r} (choose from {INFER}, {', '.join(UTENSIL_NAMES)})"
+        )
+    if goal != INFER and utensil is not None and utensil != goal:
+        raise ConfigError(
+            f"--utensil {utensil} with --goal {goal}: a robot told its goal seeks the person's "
+            f"utensil; leave --utensil out, or --goal {INFER} (the robot infers it)"
+        )
+    return goal, utensil or (goal if goal != INFER else "spoon")
 
 
 def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOptions:
@@ -402,7 +470,9 @@ def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOp
     return LoopOptions(
         source=source,
         loop=loop,
-        utensil=args.utensil,
+        utensil=args.utensil or "",
+        goal=args.goal or "",
+        change_mind=parse_change_mind(args.change_mind),
         robot=args.robot,
         seed=args.seed,
         goal_noise_m=args.goal_noise,
@@ -423,6 +493,52 @@ def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOp
         history=history,
         input_delay_given=args.input_delay is not None or "input_delay_s" in loop_file,
     )
+
+
+def parse_change_mind(text: str | None) -> tuple[str, float] | None:
+    """`--change-mind UTENSIL:S` as (utensil, seconds); None when not given.
+
+    Raises:
+        ConfigError: not UTENSIL:S with S a number (one line).
+    """
+    if text is None:
+        return None
+    name, sep, at = text.partition(":")
+    try:
+        seconds = float(at)
+    except ValueError:
+        seconds = math.nan
+    if not sep or not name or not math.isfinite(seconds):
+        raise ConfigError(f"--change-mind needs UTENSIL:S (e.g. spatula:1.5), got {text!r}")
+    return name.strip(), seconds
+
+
+def check_change_mind(change: tuple[str, float], source: str, goal: str, utensil: str) -> None:
+    """A change of mind the demo person can make: the demo, a robot that infers its goal, a
+    known other utensil, a time > 0.
+
+    Raises:
+        ConfigError: one line saying which and why.
+    """
+    from dsteleop.app.plants.kitchen import INFER
+    from dsteleop.robot.world import UTENSIL_NAMES
+
+    name, at = change
+    if source != "demo":
+        raise ConfigError("--change-mind: only the demo person changes its mind (--source demo)")
+    if goal != INFER:
+        raise ConfigError(
+            f"--change-mind with a robot told the {goal}: it would work against the person; "
+            f"use --goal {INFER}"
+        )
+    if name not in UTENSIL_NAMES:
+        raise ConfigError(
+            f"--change-mind: unknown utensil {name!r} (choose from {', '.join(UTENSIL_NAMES)})"
+        )
+    if name == utensil:
+        raise ConfigError(f"--change-mind {name}: the person wants the {utensil} already")
+    if not at > 0:
+        raise ConfigError(f"--change-mind: the time must be > 0 seconds, got {at:g}")
 
 
 def check_robot(robot: str) -> None:
