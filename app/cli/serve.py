@@ -42,7 +42,6 @@ from dsteleop.app.cli.options import (
     loop_options,
 )
 from dsteleop.app.cli.signals import StopOnSignal
-from dsteleop.app.inputs.demo import DemoConfig
 from dsteleop.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -142,6 +141,7 @@ def run(args: argparse.Namespace) -> int:
         root = opts.record_lerobot / SESSIONS  # the sessions behind the dataset
     built = build(opts, realtime=True, export_scene=True, record_root=root)
     loop, spec = built.loop, built.source
+    plant = loop.task.describe()
     viewer = None
     # Signals stop the loop from here on, also while closing: a second Ctrl-C during the
     # cleanup must not cut the recording's close short.
@@ -152,14 +152,15 @@ def run(args: argparse.Namespace) -> int:
                 loop.controls,
                 scene=loop.task.scene(),
                 config=ViewerConfig(host=cmd.host, port=cmd.port),
-                utensils=tuple(loop.task.describe().get("utensils", ())),
+                utensils=tuple(plant.get("goals") or plant.get("utensils") or ()),
+                utensil=plant.get("goal"),
                 sliders=sliders_for(
                     loop.config.arbitration, loop.task.describe().get("goal_noise_m", 0.0)
                 ),
                 arbitration=loop.config.arbitration,
                 source=source_label(spec),
                 mapping=hand_mapping(loop.hand.mapping_config()),
-                info={"world": DemoConfig().describe()} if spec.kind == "demo" else None,
+                info=({"world": built.demo.config.describe()} if built.demo is not None else None),
             )
             if opts.record is not None or opts.record_lerobot is not None:
                 utensil = str(loop.task.describe().get("utensil", "task"))
