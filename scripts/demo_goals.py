@@ -6,8 +6,10 @@ C]` headless, one loop in a worker process (two workers by default, each run alo
 process's loop; run it under `nice`), with U = (spoon, spatula, ladle)[K % 3] (`--utensils
 cycle`, the default: the person's utensil varies with the seed, so a robot that guesses the first
 candidate is not right for free) or one utensil for every seed. Per mode it prints the
-successes, the geometric mean time of the successes and of all runs (a failure by timeout
-counts its time limit), and with inference the belief's counts (`app.replay.belief`): the
+successes (the person's utensil in the bin: the task counts any utensil the person grasped,
+docs/operator.md, but a demo person who wanted another one did not succeed), the geometric
+mean time of the successes and of all runs (a failure by timeout counts its time limit), and
+with inference the belief's counts (`app.replay.belief`): the
 runs whose MAP ended on the utensil grasped, the median time the MAP settled, the mean MAP
 switches, and the runs whose grasped utensil was not the person's (wrong object).
 
@@ -44,7 +46,7 @@ def one(job: tuple[str, int, str, str, list[str]]) -> dict[str, Any]:
     mode, seed, goal, utensil, extra = job
     from dsteleop.app.cli import run as run_cmd
     from dsteleop.app.cli.compose import build
-    from dsteleop.app.replay.belief import belief_metrics
+    from dsteleop.app.replay.belief import belief_metrics, grasped_utensil
 
     argv = ["run", "--source", "demo", "--mode", mode, "--seed", str(seed), "--goal", goal]
     argv += ["--utensil", utensil, *extra]
@@ -73,7 +75,7 @@ def one(job: tuple[str, int, str, str, list[str]]) -> dict[str, Any]:
         "utensil": utensil,
         "outcome": "none" if o is None else ("success" if o.success else "failure"),
         "reason": None if o is None else o.reason,
-        "grasped_utensil": None if o is None else o.utensil,
+        "grasped_utensil": grasped_utensil(records),
         "time_s": len(records) * dt if o is None else o.time_s,
         "belief": belief_metrics(records, dt),
         "wall_s": round(time.perf_counter() - t0, 2),
@@ -83,6 +85,18 @@ def one(job: tuple[str, int, str, str, list[str]]) -> dict[str, Any]:
 
 def geomean(x: list[float]) -> float | None:
     return math.exp(sum(math.log(v) for v in x) / len(x)) if x else None
+
+
+def right(r: dict[str, Any]) -> bool:
+    """A success of the demo: the person's utensil (the one it wanted at the end) in the bin."""
+    return bool(r["outcome"] == "success" and r["grasped_utensil"] == r["final_utensil"])
+
+
+def how(r: dict[str, Any]) -> str:
+    """How a run that is not a success ended."""
+    if r["outcome"] == "success":
+        return f"the {r['grasped_utensil']} in the bin, not the {r['final_utensil']}"
+    return str(r["reason"] or "none")
 
 
 def table(rows: list[dict[str, Any]], modes: list[str]) -> str:
@@ -96,8 +110,8 @@ def table(rows: list[dict[str, Any]], modes: list[str]) -> str:
     ]
     for m in modes:
         rs = sorted((r for r in rows if r["mode"] == m), key=lambda r: r["seed"])
-        ok = [r for r in rs if r["outcome"] == "success"]
-        bad = ", ".join(f"{r['seed']}: {r['reason'] or 'none'}" for r in rs if r not in ok)
+        ok = [r for r in rs if right(r)]
+        bad = ", ".join(f"{r['seed']}: {how(r)}" for r in rs if r not in ok)
         gs, ga = geomean([r["time_s"] for r in ok]), geomean([r["time_s"] for r in rs])
         b = aggregate_beliefs([r["belief"] for r in rs])
         wrong = sum(1 for r in rs if r["grasped_utensil"] not in (None, r["final_utensil"]))

@@ -215,6 +215,28 @@ def test_a_live_run_logs_every_tick_without_dropping(tmp_path: Path) -> None:
     assert any("/live/scene/robot/palm:" in c for c in cols)
 
 
+def test_a_live_run_inferring_its_goal_logs_its_belief_every_tick(tmp_path: Path) -> None:
+    """`run --goal infer --rerun`: the belief in each candidate and the confidence per
+    dimension, one row per tick; the probabilities of a tick's candidates sum to 1."""
+    out = tmp_path / "infer.rrd"
+    r = cli("run", "--source", "demo", "--goal", "infer", "--utensil", "spatula", "--seed", "1",
+            "--rerun", out, "--record", tmp_path / "s")  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    ticks = json.loads(r.stdout.strip().splitlines()[-1])["ticks"]
+    rec = load_recording(out)
+    names = ("spoon", "spatula", "ladle", "bin")
+    p = {n: scalars(rec, layout.belief(layout.LIVE_ROOT, n))[1] for n in names}
+    assert all(len(v) == ticks for v in p.values())
+    total = np.nansum(np.stack(list(p.values())), axis=0)
+    np.testing.assert_allclose(total, 1.0, atol=1e-6)
+    session = read_session(tmp_path / "s")
+    want = [rcd.belief.of("spatula") if rcd.belief else np.nan for rcd in session.records]
+    np.testing.assert_allclose(p["spatula"], want, atol=1e-9)
+    for d in ("x", "yaw", "ring", "joint"):
+        _, c = scalars(rec, layout.confidence(layout.LIVE_ROOT, d))
+        assert len(c) == ticks and np.nanmin(c) >= 0.0 and np.nanmax(c) <= 1.0
+
+
 def test_a_session_of_the_first_format_replays_into_a_recording(tmp_path: Path) -> None:
     out = tmp_path / "old.rrd"
     r = cli("replay", GOLDEN_V1, "--as-recorded", "--out", tmp_path / "o", "--no-plots",

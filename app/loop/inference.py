@@ -9,11 +9,24 @@ utensils in the pick phase, the bin in the place phase; docs/METHOD.md §10):
                           (a candidate's fingers closed): the same belief over the new model
     update                with a fresh hand this tick and the one before (X_human and
                           X_human_prev, as eq (6) reads them): Bayes' rule and the floor,
-                          `arbitration.belief.GoalBelief.update`; otherwise held (a lost,
-                          stalled or returning hand is no evidence)
+                          `arbitration.belief.GoalBelief.update`, over the palm's pose (the
+                          6 pose dimensions, below); otherwise held (a lost, stalled or
+                          returning hand is no evidence)
     read                  the MAP candidate's pose is the robot's X_goal; the confidence per
-                          dimension and joint go to `ArbitrationInput.confidence` and
-                          `confidence_joint`
+                          dimension (all 6 + F) and joint go to `ArbitrationInput.confidence`
+                          and `confidence_joint`
+
+Evidence from the pose alone. Every candidate asks the same of the fingers (open, then closed
+at the object: the task's schedule), so the fingers say nothing about which object the person
+wants; and a hand that closes is far from every open candidate's finger goal at once, which
+adds the same large term under the root of every candidate's cost-to-go (`belief` docstring)
+and shrinks the differences between them: since the log-odds telescope to where the hand is
+now, a closing hand would wash out the evidence of where it went (measured in the demo's
+manual runs before this: the MAP ended on the grasped utensil in 7 of 18). So the belief is
+updated from the pose dimensions of the candidates and of the hand (`GoalBelief` over F = 0
+fingers), and the confidence is read over all 6 + F dimensions from the same belief (the
+candidates' finger goals included: a candidate whose fingers closed, because the palm came
+near it, disagrees in the fingers with the others, so c of each finger is the belief in it).
 
 The belief is a batch of one row (the loop's one robot). Its parameters are
 `ArbitrationConfig.belief` (`--param belief.beta=...`), taken at every tick, so a change from
@@ -56,6 +69,11 @@ def _one(X: HandState) -> HandState:
     return HandState(X.position[None], X.rotation[None], X.openness[None])
 
 
+def _pose(X: HandState) -> HandState:
+    """The state without its fingers (F = 0)."""
+    return HandState(X.position, X.rotation, np.zeros((*X.batch, 0)))
+
+
 def _same(a: Candidates, b: Candidates) -> bool:
     return (
         np.array_equal(a.goals.position, b.goals.position)
@@ -69,14 +87,15 @@ class GoalInference:
     """The belief the loop keeps (module docstring)."""
 
     def __init__(self) -> None:
-        self._model: GoalBelief | None = None
+        self._model: GoalBelief | None = None  # over all 6 + F dimensions: the confidence
+        self._pose_model: GoalBelief | None = None  # over the pose: the evidence
         self._candidates: Candidates | None = None
         self._belief: Array | None = None
         self.updates = 0
 
     def reset(self) -> None:
         """A new trial: the next candidates start at the prior."""
-        self._model = self._candidates = self._belief = None
+        self._model = self._pose_model = self._candidates = self._belief = None
 
     def step(
         self,
@@ -87,9 +106,10 @@ class GoalInference:
     ) -> Inferred:
         """One tick (module docstring): `X_human` the fresh hand of this tick (None: none),
         `X_human_prev` the one of the tick before (None: none; no evidence this tick)."""
-        model = self._model
+        model, pose_model = self._model, self._pose_model
         if (
             model is None
+            or pose_model is None
             or self._candidates is None
             or self._belief is None
             or model.params != params
@@ -97,13 +117,17 @@ class GoalInference:
             or not _same(self._candidates, candidates)
         ):
             new_names = self._candidates is None or self._candidates.names != candidates.names
-            model = GoalBelief(candidates.goals, candidates.sigma, params, names=candidates.names)
+            names = candidates.names
+            model = GoalBelief(candidates.goals, candidates.sigma, params, names=names)
+            pose = _pose(candidates.goals)
+            pose_model = GoalBelief(pose, candidates.sigma[:, :6], params, names=names)
             if new_names or self._belief is None:
-                self._belief = model.initial(1)
-            self._model, self._candidates = model, candidates
+                self._belief = pose_model.initial(1)
+            self._model, self._pose_model, self._candidates = model, pose_model, candidates
         assert self._belief is not None
         if X_human is not None and X_human_prev is not None:
-            self._belief = model.update(self._belief, _one(X_human), _one(X_human_prev))
+            now, before = _pose(_one(X_human)), _pose(_one(X_human_prev))
+            self._belief = pose_model.update(self._belief, now, before)
             self.updates += 1
         conf = model.confidence(self._belief)
         m = int(conf.map_index[0])
