@@ -46,7 +46,7 @@ def one(job: tuple[str, int, str, str, list[str]]) -> dict[str, Any]:
     mode, seed, goal, utensil, extra = job
     from dsteleop.app.cli import run as run_cmd
     from dsteleop.app.cli.compose import build
-    from dsteleop.app.replay.belief import belief_metrics, grasped_utensil
+    from dsteleop.app.replay.belief import belief_metrics_of, grasped_utensil
 
     argv = ["run", "--source", "demo", "--mode", mode, "--seed", str(seed), "--goal", goal]
     argv += ["--utensil", utensil, *extra]
@@ -77,7 +77,7 @@ def one(job: tuple[str, int, str, str, list[str]]) -> dict[str, Any]:
         "reason": None if o is None else o.reason,
         "grasped_utensil": grasped_utensil(records),
         "time_s": len(records) * dt if o is None else o.time_s,
-        "belief": belief_metrics(records, dt),
+        "belief": belief_metrics_of(records, dt),
         "wall_s": round(time.perf_counter() - t0, 2),
         "command": "dsteleop " + " ".join(argv),
     }

@@ -21,7 +21,7 @@ from dsteleop.app.cli.compose import build
 from dsteleop.app.cli.options import LoopOptions
 from dsteleop.app.loop import LoopConfig
 from dsteleop.app.loop.inference import GoalInference
-from dsteleop.app.replay.belief import belief_metrics, grasped_utensil, pick_beliefs
+from dsteleop.app.replay.belief import belief_metrics_of, grasped_utensil, pick_beliefs
 from dsteleop.app.session.schema import TickRecord
 from dsteleop.arbitration import ArbitrationConfig, HandState, Mode
 from dsteleop.arbitration.belief import BeliefParams
@@ -119,11 +119,11 @@ def test_a_robot_not_told_its_utensil_keeps_a_belief_in_the_loop() -> None:
     eps = ArbitrationConfig().belief.epsilon
     assert min(float(b.probability.min()) for b in beliefs) >= eps - 1e-12
     assert {b.names for b in beliefs} == {UTENSILS, ("bin",)}
-    picks = pick_beliefs(records)
+    picks = pick_beliefs([r.t_s for r in records], [r.belief for r in records])
     assert picks and all(b.names == UTENSILS for _, b in picks)
     meta_goal = {r.belief.map_name for r in records if r.belief and r.belief.names == ("bin",)}
     assert meta_goal == {"bin"}
-    m = belief_metrics(records, 1 / 30)
+    m = belief_metrics_of(records, 1 / 30)
     assert m is not None and m["candidates"] == list(UTENSILS)
     assert grasped_utensil(records) == "spatula" and m["map_right"]
 
@@ -132,7 +132,7 @@ def _rate(runs: Sequence[tuple[list[TickRecord], str]]) -> int:
     """How many runs grasped the utensil the person wanted (at the end) with the MAP on it."""
     n = 0
     for records, wanted in runs:
-        m = belief_metrics(records, 1 / 30)
+        m = belief_metrics_of(records, 1 / 30)
         n += bool(m is not None and m["grasped"] == wanted and m["map_final"] == wanted)
     return n
 
@@ -161,7 +161,8 @@ def test_a_demo_person_who_changes_its_mind_mid_reach_is_followed() -> None:
         then = UTENSILS[(seed + 1) % 3]
         records, demo = _demo(goal="infer", utensil=first, seed=seed, change_mind=(then, 1.5))
         assert demo is not None and demo.wanted == then
-        early = [b for t, b in pick_beliefs(records) if t < 1.5]
+        beliefs = pick_beliefs([r.t_s for r in records], [r.belief for r in records])
+        early = [b for t, b in beliefs if t < 1.5]
         assert early  # it did reach before it changed its mind
         runs.append((records, then))
     assert _rate(runs) >= 4
@@ -199,3 +200,34 @@ def test_a_told_goal_keeps_its_old_meaning() -> None:
     assert (default.goal, default.utensil) == ("spoon", "spoon")
     infer = LoopOptions.of("demo", goal="infer")
     assert (infer.goal, infer.utensil, infer.infer) == ("infer", "spoon", True)
+
+
+def test_replay_counts_and_plots_the_belief(tmp_path: Path) -> None:
+    """A session of a robot inferring its goal, as recorded and replayed (the replay rebuilds
+    the same candidates and keeps its own belief): metrics.json says per run and per mode
+    what the belief did, and a plot shows it."""
+    session = tmp_path / "s"
+    r = subprocess.run(
+        [*CLI, "run", "--source", "demo", "--goal", "infer", "--utensil", "ladle", "--seed",
+         "4", "--record", str(session)],
+        capture_output=True, text=True, timeout=600, check=False,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    for extra in (["--as-recorded"], ["--modes", "DSC"]):
+        out = tmp_path / f"out{len(extra)}"
+        r = subprocess.run(
+            [*CLI, "replay", str(session), "--out", str(out), *extra],
+            capture_output=True, text=True, timeout=900, check=False,
+        )  # fmt: skip
+        assert r.returncode == 0, r.stderr
+        import json
+
+        metrics = json.loads((out / "metrics.json").read_text())
+        (entry,) = metrics["episodes"]
+        (mode,) = entry["modes"]
+        b = entry["modes"][mode]["belief"]
+        assert b["candidates"] == list(UTENSILS) and b["grasped"] in (*UTENSILS, None)
+        assert 0 <= b["map_switches"] and set(b["confidence_mean"]) >= {"x", "y", "ring"}
+        agg = metrics["modes"][mode]["belief"]
+        assert agg["runs"] == 1 and agg["grasped"] in (0, 1)
+        assert list(out.glob("*_belief.png")), sorted(p.name for p in out.iterdir())

@@ -396,6 +396,7 @@ class TeleopLoop:
             assert inp is not None
             inp = self.hand.reanchor(inp, tick.anchor_target(self.state))
         inferred: Inferred | None = None
+        t_goal = time.perf_counter()
         if candidates is not None:
             X_h = inp.X_human if fresh and inp is not None else None
             X_h_prev = None if self.state.lost else self.state.X_human_prev
@@ -403,6 +404,7 @@ class TeleopLoop:
                 candidates, self.config.arbitration.belief, X_h, X_h_prev
             )
             goal = inferred.goal
+        goal_ms = (time.perf_counter() - t_goal) * 1e3
         ended = self.hand.end_reason if self.hand.finished else ""
         self.state, decision = tick.decide(
             self.state,
@@ -431,6 +433,8 @@ class TeleopLoop:
         for e in (*notes, *(encode_event(ev) for ev in result.events)):
             self.events_log.append((self.tick_index, e))
         timing = self._timing(inp, now, t_arb, t_cmd, jitter_s)
+        if inferred is not None:
+            timing["goal_ms"] = goal_ms  # the belief's update and reading, this tick
         record = TickRecord(
             k=self.tick_index,
             t_s=now,

@@ -35,15 +35,17 @@ def _num(x: float) -> float | None:
     return None if not np.isfinite(x) else round(float(x), 4)
 
 
-def pick_beliefs(records: Sequence[TickRecord]) -> list[tuple[float, BeliefRecord]]:
-    """(tick time from the run's first tick [s], belief) of the pick phase's ticks."""
-    if not records:
+def pick_beliefs(
+    t_s: Sequence[float], beliefs: Sequence[BeliefRecord | None]
+) -> list[tuple[float, BeliefRecord]]:
+    """(time from the run's first tick [s], belief) of the pick phase's ticks."""
+    if not len(t_s):
         return []
-    t0 = records[0].t_s
+    t0 = float(t_s[0])
     return [
-        (r.t_s - t0, r.belief)
-        for r in records
-        if r.belief is not None and r.belief.names != PLACE_NAMES
+        (float(t) - t0, b)
+        for t, b in zip(t_s, beliefs, strict=True)
+        if b is not None and b.names != PLACE_NAMES
     ]
 
 
@@ -56,21 +58,26 @@ def grasped_utensil(records: Sequence[TickRecord]) -> str | None:
     return None
 
 
-def belief_metrics(records: Sequence[TickRecord], dt_s: float) -> dict[str, Any] | None:
-    """The run's belief counts (module docstring); None for a run without a belief (told)."""
+def belief_metrics(
+    t_s: Sequence[float],
+    beliefs: Sequence[BeliefRecord | None],
+    grasped: str | None,
+    dims: Sequence[str],
+    dt_s: float,
+) -> dict[str, Any] | None:
+    """A run's belief counts (module docstring) from its ticks' times and beliefs and the
+    utensil it grasped; None for a run without a belief (told)."""
     from dsteleop.app.study.inference import map_stats
 
-    picks = pick_beliefs(records)
+    picks = pick_beliefs(t_s, beliefs)
     if not picks:
         return None
     names = picks[-1][1].names
     maps = np.array([names.index(b.map_name) for _, b in picks], dtype=np.int64)
-    grasped = grasped_utensil(records)
     final = picks[-1][1]
     target = names.index(grasped) if grasped in names else -1
     stats = map_stats(maps[:, None], np.array([len(maps)]), np.array([target], dtype=np.intp), dt_s)
     conf = np.stack([b.confidence for _, b in picks])
-    dims = records[0].dims
     return {
         "candidates": list(names),
         "grasped": grasped,
@@ -83,6 +90,19 @@ def belief_metrics(records: Sequence[TickRecord], dt_s: float) -> dict[str, Any]
         "confidence_joint_mean": _num(float(np.mean([b.confidence_joint for _, b in picks]))),
         "pick_ticks": len(picks),
     }
+
+
+def belief_metrics_of(records: Sequence[TickRecord], dt_s: float) -> dict[str, Any] | None:
+    """`belief_metrics` of a run's records."""
+    if not records:
+        return None
+    return belief_metrics(
+        [r.t_s for r in records],
+        [r.belief for r in records],
+        grasped_utensil(records),
+        records[0].dims,
+        dt_s,
+    )
 
 
 def aggregate_beliefs(runs: Sequence[dict[str, Any] | None]) -> dict[str, Any] | None:
