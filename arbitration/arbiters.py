@@ -595,8 +595,9 @@ def _finish(
 
 
 def make_arbiter(mode: Mode | str, config: ArbitrationConfig | None = None) -> Arbiter:
-    """The arbiter of a mode (a Mode or its name: DS, S, manual, autonomous, scalar, ...)."""
-    m = Mode.parse(mode)
+    """The arbiter of a mode (a Mode, or its name: DS, S, manual, autonomous, scalar, ...;
+    a Mode is taken as it is, never parsed again)."""
+    m = mode if isinstance(mode, Mode) else Mode.parse(mode)
     return Arbiter(m, config or ArbitrationConfig())
 
 

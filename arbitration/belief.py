@@ -19,13 +19,24 @@ cost C is the same for every goal and cancels in the normalisation, so one tick 
     b'_g     = b_g * exp(-beta * (V_g(x_t) - V_g(x_{t-1}))) / Z            (Bayes' rule)
     b_g     <- eps where b'_g < eps, the others rescaled to sum to 1        (the floor)
 
-with x the person's mapped hand (`X_human`), b the belief (starting at the prior) and Z the
-normaliser. V_g is the distance to the goal in units of the task's tolerances, softened by
+with x -> x' the person's motion this tick, b the belief (starting at the prior) and Z the
+normaliser. Which x: where the robot follows the hand exactly (manual control) the mapped hand
+`X_human` is the robot, and x -> x' is the hand's own step. Under assistance the mapped hand
+drifts from the robot (docs/METHOD.md §2: it integrates what the person pushed, not where it
+wants the robot), and its distance to the candidates says little; the motion is then read
+where it acts, as Javdani's `ada_assistance_policy` reads the user's action from the robot's
+state: x = X_current, x' = `commanded(X_current, X_human, X_human_prev)`, the robot's state
+moved by the hand's step (identical to the hand's own step under manual control).
+
+V_g is the distance to the goal in units of the task's tolerances, softened by
 the goal's own uncertainty (the expected squared distance to a goal known up to sigma), so
 approaching an uncertain goal is weaker evidence once the hand is within its uncertainty, and
-V_g is smooth at the goal. Without the floor, the log-odds telescope: log b_g(t) = log prior_g
-- beta (V_g(x_t) - V_g(x_0)) + const, so tremor does not accumulate, only where the hand got
-to. The floor keeps every goal's probability at eps or above (the goals below it are set to
+V_g is smooth at the goal. Where x' of one tick is x of the next (the hand's own path),
+without the floor the log-odds telescope: log b_g(t) = log prior_g - beta (V_g(x_t) -
+V_g(x_0)) + const, so tremor does not accumulate, only where the hand got to; read at the
+robot's state, a person pushing against a robot that goes elsewhere keeps adding evidence
+for the goals it pushes towards, and tremor adds a zero-mean walk that the floor bounds.
+The floor keeps every goal's probability at eps or above (the goals below it are set to
 eps, the others keep their ratios; repeated until none is below, at most K passes), as
 Javdani's `ada_assistance_policy` clips its goal probabilities, against the runaway
 confidence Aronson & Short warn of: the log-odds of any two goals stay within
@@ -70,7 +81,7 @@ from scipy.special import erf
 
 from dsteleop.arbitration.jit import kernel
 from dsteleop.arbitration.modes.base import check_range
-from dsteleop.arbitration.se3 import HandState, diff, log_relative_of
+from dsteleop.arbitration.se3 import HandState, diff, integrate, log_relative_of
 from dsteleop.errors import ConfigError
 
 Array = NDArray[np.float64]
@@ -316,6 +327,13 @@ def _cost_to_go(
                 sq += d * d
             out[r, k] = math.sqrt(sq)
     return out
+
+
+def commanded(X_robot: HandState, X_human: HandState, X_human_prev: HandState) -> HandState:
+    """Where the person's step this tick takes the robot: X_robot moved by diff(X_human,
+    X_human_prev) (eq (2)'s integration of the hand's motion, from the robot's state): the x'
+    of the belief's update read at the robot's state, x = X_robot (module docstring)."""
+    return integrate(X_robot, diff(X_human, X_human_prev), 1.0)
 
 
 def _with_rows(X: HandState) -> HandState:

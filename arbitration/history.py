@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 
 from dsteleop.arbitration.allocation import unit_directions
 from dsteleop.arbitration.se3 import HandState, diff
+from dsteleop.errors import FormatError
 
 Array = NDArray[np.float64]
 SCHEMA = "dsteleop.operator_history/1"
@@ -65,15 +66,15 @@ class OperatorHistory:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> OperatorHistory:
         if data.get("schema") != SCHEMA:
-            raise ValueError(f"not an operator history (schema {data.get('schema')!r})")
+            raise FormatError(f"not an operator history (schema {data.get('schema')!r})")
         attempts = []
         for item in data["attempts"]:
             start = tuple(float(v) for v in item["start"])
             terminal = tuple(float(v) for v in item["terminal"])
             if len(start) != len(terminal) or len(start) < 6:
-                raise ValueError("operator history attempt has inconsistent lengths")
+                raise FormatError("operator history attempt has inconsistent lengths")
             if not (np.isfinite(start).all() and np.isfinite(terminal).all()):
-                raise ValueError("operator history attempt is not finite")
+                raise FormatError("operator history attempt is not finite")
             attempts.append(Attempt(start, terminal))
         return cls(tuple(attempts))
 

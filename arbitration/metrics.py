@@ -64,6 +64,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import special
 
+from dsteleop.errors import ContractError
+
 Array = NDArray[np.float64]
 
 Z95 = 1.959963984540054  # the 0.975 quantile of the standard normal
@@ -345,12 +347,12 @@ def n1_chi_squared(s1: int, n1: int, s2: int, n2: int) -> ProportionTest:
     """N-1 chi-squared test between the proportions s1/n1 and s2/n2 (two-sided).
 
     Raises:
-        ValueError: a count is negative, s > n, or a group is empty.
+        ContractError: a count is negative, s > n, or a group is empty.
     """
     a, n1 = _check_counts(s1, n1)
     c, n2 = _check_counts(s2, n2)
     if n1 == 0 or n2 == 0:
-        raise ValueError("both groups need at least one trial")
+        raise ContractError("both groups need at least one trial")
     b, d = n1 - a, n2 - c
     N = n1 + n2
     den = float(n1) * n2 * (a + c) * (b + d)
@@ -368,14 +370,14 @@ def mcnemar(first: ArrayLike, second: ArrayLike) -> McNemarTest:
         second: (n,) success of the same trials under the second condition.
 
     Raises:
-        ValueError: different shapes, or a value that is not 0/1.
+        ContractError: different shapes, or a value that is not 0/1.
     """
     a, b = np.asarray(first), np.asarray(second)
     if a.shape != b.shape:
-        raise ValueError(f"paired outcomes differ in shape: {a.shape} vs {b.shape}")
+        raise ContractError(f"paired outcomes differ in shape: {a.shape} vs {b.shape}")
     for x in (a, b):
         if not np.isin(x, (0, 1)).all():
-            raise ValueError("paired outcomes must be booleans or 0/1")
+            raise ContractError("paired outcomes must be booleans or 0/1")
     a, b = a.astype(bool).ravel(), b.astype(bool).ravel()
     n_b, n_c = int(np.sum(a & ~b)), int(np.sum(~a & b))
     n = n_b + n_c
@@ -398,7 +400,7 @@ def geometric_mean(samples: ArrayLike, confidence: float = 0.95) -> GeometricMea
         confidence: level of the interval.
 
     Raises:
-        ValueError: empty input, or a sample that is not finite and > 0.
+        ContractError: empty input, or a sample that is not finite and > 0.
     """
     y = _logs(samples)
     n = y.size
@@ -419,11 +421,11 @@ def t_test(a: ArrayLike, b: ArrayLike, equal_var: bool = False) -> TTest:
     """Two-sample t-test, two-sided: Welch's by default, Student's pooled with equal_var.
 
     Raises:
-        ValueError: fewer than two samples in a group, or a non-finite sample.
+        ContractError: fewer than two samples in a group, or a non-finite sample.
     """
     x, y = _finite(a), _finite(b)
     if x.size < 2 or y.size < 2:
-        raise ValueError("a t-test needs at least two samples per group")
+        raise ContractError("a t-test needs at least two samples per group")
     n1, n2 = x.size, y.size
     v1, v2 = float(x.var(ddof=1)), float(y.var(ddof=1))
     diff = float(x.mean() - y.mean())
@@ -443,11 +445,11 @@ def paired_t_test(a: ArrayLike, b: ArrayLike) -> TTest:
     """Paired t-test of a - b (same trials under two conditions), two-sided.
 
     Raises:
-        ValueError: different lengths, fewer than two pairs, or a non-finite sample.
+        ContractError: different lengths, fewer than two pairs, or a non-finite sample.
     """
     x, y = _finite(a), _finite(b)
     if x.shape != y.shape or x.size < 2:
-        raise ValueError("a paired t-test needs two equally long samples of at least two")
+        raise ContractError("a paired t-test needs two equally long samples of at least two")
     d = x - y
     se = float(d.std(ddof=1)) / math.sqrt(d.size)
     return _t_result(float(d.mean()), se, float(d.size - 1))
@@ -470,15 +472,15 @@ def paired_difference(a: ArrayLike, b: ArrayLike, confidence: float = 0.95) -> D
     difference of proportions with a t quantile.
 
     Raises:
-        ValueError: different shapes, or fewer than two finite pairs.
+        ContractError: different shapes, or fewer than two finite pairs.
     """
     x, y = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
     if x.shape != y.shape:
-        raise ValueError("a paired difference needs two equally long samples")
+        raise ContractError("a paired difference needs two equally long samples")
     ok = np.isfinite(x) & np.isfinite(y)
     d = x[ok] - y[ok]
     if d.size < 2:
-        raise ValueError("a paired difference needs at least two finite pairs")
+        raise ContractError("a paired difference needs at least two finite pairs")
     m = float(d.mean())
     half = t_quantile(0.5 + confidence / 2.0, d.size - 1) * float(d.std(ddof=1)) / math.sqrt(d.size)
     return Difference(m, m - half, m + half, int(d.size))
@@ -492,15 +494,15 @@ def js_divergence(P: ArrayLike, Q: ArrayLike) -> float:
             sum 1.
 
     Raises:
-        ValueError: shapes differ, a value is negative or not finite, or a histogram is empty.
+        ContractError: shapes differ, a value is negative or not finite, or a histogram is empty.
     """
     p = np.asarray(P, dtype=np.float64)
     q = np.asarray(Q, dtype=np.float64)
     if p.shape != q.shape:
-        raise ValueError(f"histograms differ in shape: {p.shape} vs {q.shape}")
+        raise ContractError(f"histograms differ in shape: {p.shape} vs {q.shape}")
     for h in (p, q):
         if not np.isfinite(h).all() or (h < 0).any() or h.sum() <= 0:
-            raise ValueError("histograms must be finite, non-negative and not empty")
+            raise ContractError("histograms must be finite, non-negative and not empty")
     p = p.ravel() / p.sum()
     q = q.ravel() / q.sum()
     m = 0.5 * (p + q)
@@ -549,19 +551,19 @@ def _t_result(diff: float, se: float, df: float) -> TTest:
 def _check_counts(s: int, n: int) -> tuple[int, int]:
     s_i, n_i = int(s), int(n)
     if s_i != s or n_i != n or n_i < 0 or not 0 <= s_i <= n_i:
-        raise ValueError(f"need integers 0 <= successes <= n, got {s!r} of {n!r}")
+        raise ContractError(f"need integers 0 <= successes <= n, got {s!r} of {n!r}")
     return s_i, n_i
 
 
 def _finite(a: ArrayLike) -> Array:
     x = np.asarray(a, dtype=np.float64).ravel()
     if not np.isfinite(x).all():
-        raise ValueError("samples must be finite")
+        raise ContractError("samples must be finite")
     return x
 
 
 def _logs(samples: ArrayLike) -> Array:
     x = _finite(samples)
     if x.size == 0 or (x <= 0).any():
-        raise ValueError("need at least one sample, all > 0")
+        raise ContractError("need at least one sample, all > 0")
     return np.log(x)

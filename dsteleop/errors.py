@@ -5,12 +5,20 @@
       ConfigError        a setting or hyper-parameter out of its domain (the message names it)
       InputError         bad input: a missing, corrupt or unsupported file, a camera that
                          does not open, a malformed session, a port in use
+        FormatError      data that breaks its format (a session's record, an operator
+                         history, an episode entry); also a ValueError, so a reader that
+                         names the file catches it with json's and numpy's parse errors
         ModelFileError   the hand model shipped in the package is missing or not the file
                          its sha256 names (a broken install)
       RobotLostError     the robot stopped answering during a run (its link's far end died):
                          not bad input, so exit code 3, for a script to tell it apart
 
-Anything else that escapes is a bug and keeps its traceback.
+    ContractError        not a DsteleopError: a function called outside its stated domain
+                         (arrays of the wrong shape, too few samples for a test, a mapping
+                         not calibrated yet). The caller's bug, so it keeps its traceback.
+
+Anything else that escapes is a bug and keeps its traceback. Validators and input checks raise
+one of these, never a bare ValueError (tests/test_errors.py).
 """
 
 
@@ -29,6 +37,11 @@ class InputError(DsteleopError):
     """Input the program cannot use: a file, a camera, a session, an address."""
 
 
+class FormatError(InputError, ValueError):
+    """Data that breaks its format; a ValueError too, so a reader that adds the file and line
+    to the message catches it beside the parsers' own errors."""
+
+
 class ModelFileError(InputError):
     """The model file shipped in the package is missing or does not match its sha256."""
 
@@ -37,3 +50,8 @@ class RobotLostError(DsteleopError):
     """The robot was lost (no state) for longer than allowed during a run: exit code 3."""
 
     exit_code = 3
+
+
+class ContractError(ValueError):
+    """A function was called outside its stated domain: a bug in the caller, not bad input, so
+    the command does not turn it into one line (it keeps its traceback)."""

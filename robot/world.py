@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dsteleop.arbitration.se3 import matrix_from_quat_wxyz, quat_wxyz_from_matrix, so3_exp
+from dsteleop.errors import ContractError
 from dsteleop.robot.bullet import pb
 
 Array = NDArray[np.float64]
@@ -209,7 +210,7 @@ def _shape_args(parts: tuple[Part, ...]) -> dict[str, list[object]]:
             radii.append(p.size_m[0])
             lengths.append(p.size_m[1])
         else:  # pragma: no cover - specs are constants
-            raise ValueError(p.kind)
+            raise ContractError(p.kind)
         pos.append(list(p.p_body_part_m))
         orn.append(list(quat_xyzw_from_R(np.array(p.R_body_part))))
     return {

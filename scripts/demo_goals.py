@@ -45,7 +45,7 @@ def one(job: tuple[str, int, str, str, list[str]]) -> dict[str, Any]:
     """One run (module docstring), in this worker's process."""
     mode, seed, goal, utensil, extra = job
     from dsteleop.app.cli import run as run_cmd
-    from dsteleop.app.cli.compose import build
+    from dsteleop.app.compose import build
     from dsteleop.app.replay.belief import belief_metrics_of, grasped_utensil
 
     argv = ["run", "--source", "demo", "--mode", mode, "--seed", str(seed), "--goal", goal]

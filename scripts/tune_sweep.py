@@ -20,6 +20,11 @@ judgement, on other people (seed 1):
 
     .venv/bin/python scripts/tune_sweep.py --out docs/tuned/cells --trials 24 --workers 2
 
+With `--world objects` the cells are the objects world's (the robot's perception error and
+the number of objects as two more axes, app/study/sweep.py's `OBJECT_AXES`; their tune
+options `--perception-depth`, `--perception-lateral` (in the world's ratio) and `--objects`)
+and every tune command runs in that world.
+
 The cells and their names come from app/study/sweep.py (`design_cells`, `cell_name`); the
 tuning runs go through the `dsteleop` command in subprocesses, so this script depends only
 on tune's options, not on its internals.
@@ -38,17 +43,52 @@ from pathlib import Path
 from typing import Any
 
 from dsteleop.app.study import planar
-from dsteleop.app.study.sweep import AXES, DESIGNS, cell_name, centre, default_grid, design_cells
+from dsteleop.app.study.objects import Objects
+from dsteleop.app.study.sweep import (
+    AXES,
+    DESIGNS,
+    axes_of,
+    cell_name,
+    centre,
+    default_grid,
+    design_cells,
+)
 
 #: The tune options that set a cell's world, in `AXES` order (app/cli/world_options.py).
 WORLD_OPTIONS: tuple[str, ...] = ("--goal-sigma", "--delay", "--depth-sigma")
 DEFAULT_MODES: tuple[str, ...] = ("DS", "scalar")
 
 
-def cells(design: str) -> list[tuple[float, ...]]:
-    """The cells of `design` over the sweep's default grid, around the default world: the
-    cells `dsteleop sim --sweep --sweep-design DESIGN` runs."""
-    return design_cells(default_grid(), design, centre(planar.SimConfig()))
+#: The worlds it tunes in: the told-goal world (`wrong-goal`) and the objects world.
+WORLDS: tuple[str, ...] = ("wrong-goal", "objects")
+
+
+def study(world: str = "wrong-goal") -> planar.SimConfig:
+    """The study around whose world the cells lie (the objects world: its defaults, goal noise
+    0, as `--world objects` sets them)."""
+    if world == "objects":
+        base = planar.SimConfig()
+        return planar.SimConfig(objects=Objects(), world=base.world.replace(goal_sigma_m=0.0))
+    return planar.SimConfig()
+
+
+def cells(design: str, world: str = "wrong-goal") -> list[tuple[float, ...]]:
+    """The cells of `design` over the sweep's default grid, around the world's defaults: the
+    cells `dsteleop sim [--world objects] --sweep --sweep-design DESIGN` runs."""
+    cfg = study(world)
+    return design_cells(default_grid(cfg), design, centre(cfg))
+
+
+def world_options(cell: Sequence[float], world: str = "wrong-goal") -> list[str]:
+    """The tune options that set the world of `cell`."""
+    out = [x for opt, v in zip(WORLD_OPTIONS, cell, strict=False) for x in (opt, f"{v:g}")]
+    if world == "objects":
+        o = Objects()
+        depth, count = cell[len(AXES)], cell[len(AXES) + 1]
+        lateral = depth * o.perception_lateral_m / o.perception_depth_m
+        out = ["--world", "objects", *out, "--perception-depth", f"{depth:g}",
+               "--perception-lateral", f"{lateral:g}", "--objects", f"{int(count)}"]  # fmt: skip
+    return out
 
 
 def tune_command(
@@ -58,10 +98,11 @@ def tune_command(
     budget: Sequence[str],
     trajectories: int,
     workers: int,
+    world_name: str = "wrong-goal",
 ) -> list[str]:
     """The `dsteleop tune` command line that tunes `mode` in the world of `cell` into `out`,
     with the budget options `budget` (the same for every mode)."""
-    world = [x for opt, v in zip(WORLD_OPTIONS, cell, strict=True) for x in (opt, f"{v:g}")]
+    world = world_options(cell, world_name)
     return [
         "dsteleop", "tune", "--objective", "study", "--mode", mode, "--metric", "success",
         *budget, "--trajectories", str(trajectories), "--study-seed", "0",
@@ -100,10 +141,12 @@ def merge_best(bests: dict[str, dict[str, Any]]) -> dict[str, Any]:
     return {k: tuned[k][1] if k in tuned else v for k, v in first["arbitration"].items()}
 
 
-def cell_file(cell: Sequence[float], bests: dict[str, dict[str, Any]]) -> dict[str, Any]:
+def cell_file(
+    cell: Sequence[float], bests: dict[str, dict[str, Any]], world_name: str = "wrong-goal"
+) -> dict[str, Any]:
     """OUT/<cell>.json: the merged arbitration, and per mode what tune found (a `--config`
     file: `read_config_file` ignores `objective` and `note`)."""
-    world = dict(zip(AXES.values(), map(float, cell), strict=True))
+    world = dict(zip(axes_of(study(world_name)).values(), map(float, cell), strict=True))
     return {
         "arbitration": merge_best(bests),
         "objective": {
@@ -120,7 +163,8 @@ def readme(commands: list[str], args: argparse.Namespace, n_cells: int, seconds:
     lines = [
         "# Configurations tuned per cell of the sweep",
         "",
-        f"Made by `scripts/tune_sweep.py --design {args.design} --modes {args.modes} "
+        f"Made by `scripts/tune_sweep.py --world {args.world} --design {args.design} "
+        f"--modes {args.modes} "
         f"{_budget(args)} --trajectories {args.trajectories} --workers {args.workers} "
         + "".join(f"--reuse {r} " for r in args.reuse)
         + f"--out {args.out}` ({time.strftime('%Y-%m-%d', time.gmtime())}, {seconds:.0f} s "
@@ -134,8 +178,9 @@ def readme(commands: list[str], args: argparse.Namespace, n_cells: int, seconds:
         "Held-out judgement (other people, seed 1):",
         "",
         "```",
-        f"dsteleop sim --sweep --sweep-design {args.design} --cell-configs {args.out} "
-        "--seed 1 --out DIR",
+        "dsteleop sim "
+        + ("--world objects " if args.world == "objects" else "")
+        + f"--sweep --sweep-design {args.design} --cell-configs {args.out} --seed 1 --out DIR",
         "```",
         "",
         "The commands run (a run whose best.json was already there was kept, not rerun):",
@@ -161,6 +206,9 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", required=True, type=Path, help="folder of <cell>.json (created)")
     p.add_argument("--design", choices=DESIGNS, default="axes", help="cells (default axes)")
+    p.add_argument(
+        "--world", choices=WORLDS, default="wrong-goal", help="the world (default wrong-goal)"
+    )
     p.add_argument("--modes", default=",".join(DEFAULT_MODES), help="tuned modes (DS,scalar)")
     each = p.add_mutually_exclusive_group()
     each.add_argument("--trials", type=int, default=None, help="tune trials per mode and cell")
@@ -195,7 +243,7 @@ def main(argv: list[str] | None = None) -> int:
             p.error(f"--reuse {mode.strip()}: the mode is tuned here or reused twice")
         reused[mode.strip()] = Path(folder.strip())
     for mode, folder in reused.items():
-        for cell in cells(args.design):
+        for cell in cells(args.design, args.world):
             best = folder / "runs" / cell_name(cell) / mode / "best.json"
             if not best.is_file():
                 p.error(f"--reuse {mode}: no {best}")
@@ -214,14 +262,16 @@ def main(argv: list[str] | None = None) -> int:
     ) + ["--widen-edges", str(args.widen_edges)]
     program = Path(sys.executable).parent / "dsteleop"
     t0 = time.perf_counter()
-    todo = cells(args.design)
+    todo = cells(args.design, args.world)
     commands: list[str] = []
     for cell in todo:
         name = cell_name(cell)
         bests: dict[str, dict[str, Any]] = {}
         for mode in modes:
             run_dir = args.out / "runs" / name / mode
-            cmd = tune_command(cell, mode, run_dir, budget, args.trajectories, args.workers)
+            cmd = tune_command(
+                cell, mode, run_dir, budget, args.trajectories, args.workers, args.world
+            )
             commands.append(shlex.join(cmd))
             sys.stdout.write(shlex.join(cmd) + "\n")
             sys.stdout.flush()
@@ -240,7 +290,7 @@ def main(argv: list[str] | None = None) -> int:
             commands.append(f"# {mode}: reused from {best}")
         if not args.dry_run:
             args.out.mkdir(parents=True, exist_ok=True)
-            data = cell_file(cell, bests)
+            data = cell_file(cell, bests, args.world)
             (args.out / f"{name}.json").write_text(json.dumps(data, indent=2) + "\n")
     if not args.dry_run:
         text = readme(commands, args, len(todo), time.perf_counter() - t0)

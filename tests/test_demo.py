@@ -10,8 +10,7 @@ import sys
 
 import pytest
 
-from dsteleop.app.cli.compose import build
-from dsteleop.app.cli.options import LoopOptions
+from dsteleop.app.compose import LoopOptions, build
 from dsteleop.app.loop import LoopConfig
 from dsteleop.arbitration import Mode
 

@@ -18,9 +18,8 @@ from typing import Any
 
 import pytest
 
-from dsteleop.app.cli.compose import build
 from dsteleop.app.cli.main import main
-from dsteleop.app.cli.options import LoopOptions
+from dsteleop.app.compose import LoopOptions, build
 from dsteleop.app.loop import LoopConfig
 from dsteleop.app.replay.core import MIN_EPISODES, aggregate
 from dsteleop.app.session.reader import read_session

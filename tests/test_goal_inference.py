@@ -17,8 +17,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from dsteleop.app.cli.compose import build
-from dsteleop.app.cli.options import LoopOptions
+from dsteleop.app.compose import LoopOptions, build
 from dsteleop.app.loop import LoopConfig
 from dsteleop.app.loop.inference import GoalInference
 from dsteleop.app.replay.belief import belief_metrics_of, grasped_utensil, pick_beliefs
@@ -49,33 +48,34 @@ def test_the_belief_follows_the_hand_and_keeps_what_it_earned() -> None:
     inf = GoalInference()
     params = BeliefParams()
     c = _candidates()
-    first = inf.step(c, params, _hand(0.58), None)  # no hand before: no evidence
+    R = _hand(0.58)  # the robot where the hand starts
+    first = inf.step(c, params, R, _hand(0.58), None)  # no hand before: no evidence
     assert np.allclose(first.record.probability, 1 / 3) and inf.updates == 0
     assert first.record.map_name == "spoon"  # ties: the first candidate
     prev = _hand(0.58)
-    for x in np.linspace(0.585, 0.66, 20):  # the hand goes to the ladle
-        now = inf.step(c, params, _hand(x), prev)
+    for x in np.linspace(0.585, 0.66, 20):  # the hand goes to the ladle, the robot follows
+        now = inf.step(c, params, prev, _hand(x), prev)
         prev = _hand(x)
     assert now.record.map_name == "ladle" and now.record.probability[2] > 0.8
     assert np.allclose(now.goal.position, c.goals.position[2])
     # The MAP's own confidence: x is where the candidates disagree, y where they agree.
     assert now.confidence[1] > 0.9 and now.confidence[0] < now.confidence[1]
-    held = inf.step(c, params, None, None)  # a lost hand is no evidence
+    held = inf.step(c, params, R, None, None)  # a lost hand is no evidence
     assert np.array_equal(held.record.probability, now.record.probability)
     # A candidate's fingers closing is the same candidates: the belief is kept.
     closed = _candidates()
     closed.goals.openness[2] = 0.0
-    kept = inf.step(closed, params, None, None)
+    kept = inf.step(closed, params, R, None, None)
     assert np.array_equal(kept.record.probability, now.record.probability)
     assert np.allclose(kept.goal.openness, 0.0)
     # Other parameters from the next tick on: the belief is kept, the model is new.
-    steeper = inf.step(closed, BeliefParams(beta=5.0), _hand(0.662), _hand(0.66))
+    steeper = inf.step(closed, BeliefParams(beta=5.0), _hand(0.66), _hand(0.662), _hand(0.66))
     assert steeper.record.probability[2] > kept.record.probability[2]
     # Other candidates (the place phase): a new belief; a reset: the prior again.
-    place = inf.step(_candidates((0.58,)), params, None, None)
+    place = inf.step(_candidates((0.58,)), params, R, None, None)
     assert place.record.names == ("bin",) and place.record.probability.tolist() == [1.0]
     inf.reset()
-    again = inf.step(c, params, None, None)
+    again = inf.step(c, params, R, None, None)
     assert np.allclose(again.record.probability, 1 / 3)
 
 
@@ -86,7 +86,7 @@ def test_the_floor_holds_whatever_the_evidence() -> None:
     prev = _hand(0.4)
     lowest = 1.0
     for x in np.r_[np.linspace(0.4, 0.7, 200), np.linspace(0.7, 0.4, 200)]:
-        out = inf.step(c, params, _hand(x), prev)
+        out = inf.step(c, params, prev, _hand(x), prev)
         prev = _hand(x)
         lowest = min(lowest, float(out.record.probability.min()))
         assert out.record.probability.sum() == pytest.approx(1.0)

@@ -420,8 +420,8 @@ RATE_HZ = 30.0
 LIVE_CHILD = """
 import sys
 from pathlib import Path
-from dsteleop.app.cli.compose import build
-from dsteleop.app.cli.options import LoopOptions
+from dsteleop.app.compose import build
+from dsteleop.app.compose import LoopOptions
 from dsteleop.app.loop import LoopConfig
 from dsteleop.arbitration import Mode
 

@@ -5,14 +5,13 @@ child process, processes killed with SIGKILL. No fakes for the link."""
 from __future__ import annotations
 
 import json
-import signal
+import logging
 import socket
 import subprocess
 import sys
 import textwrap
-import threading
 import time
-from pathlib import Path
+from datetime import datetime
 from typing import Any
 
 import numpy as np
@@ -26,62 +25,9 @@ from dsteleop.app.link.session import Received, Subscription, Topic, open_sessio
 from dsteleop.app.ports import ROBOT_LOST
 from dsteleop.arbitration import HandState
 from dsteleop.errors import InputError
+from tests.link_rig import CLI, Far, Router, free_port, link_file
 
 pytestmark = pytest.mark.slow
-
-CLI = [sys.executable, "-m", "dsteleop.app.cli.main"]
-READY = "robot-sim: ("  # robot-sim's log line once its session and simulation are up
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def link_file(tmp_path: Path, port: int, **extra: Any) -> Path:
-    ep = f"tcp/127.0.0.1:{port}"
-    data = {"far": {"listen": [ep]}, "near": {"connect": [ep]}, "connect_timeout_s": 5.0, **extra}
-    f = tmp_path / f"link-{port}.json"
-    f.write_text(json.dumps(data))
-    return f
-
-
-class Far:
-    """`dsteleop robot-sim` in a child process; its stderr collected in a thread."""
-
-    def __init__(self, config: Path) -> None:
-        self.proc = subprocess.Popen(
-            [*CLI, "robot-sim", "--zenoh", str(config)],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
-        self.lines: list[str] = []
-        self._ready = threading.Event()
-        threading.Thread(target=self._read, daemon=True).start()
-        if not self._ready.wait(120):
-            self.proc.kill()
-            raise AssertionError("robot-sim did not start: " + "".join(self.lines))
-
-    def _read(self) -> None:
-        assert self.proc.stderr is not None
-        for line in self.proc.stderr:
-            self.lines.append(line)
-            if READY in line:
-                self._ready.set()
-
-    def terminate(self) -> dict[str, Any]:
-        """SIGTERM; robot-sim's JSON summary."""
-        self.proc.send_signal(signal.SIGTERM)
-        out, _ = self.proc.communicate(timeout=30)
-        assert self.proc.returncode == 0, "".join(self.lines)
-        result: dict[str, Any] = json.loads(out.strip().splitlines()[-1])
-        return result
-
-    def kill(self) -> None:
-        self.proc.kill()
-        self.proc.wait()
 
 
 def drive(robot: ZenohRobot, X0: HandState, seconds: float, t0: float, seq0: int = 0) -> int:
@@ -331,8 +277,7 @@ def test_serve_builds_the_linked_robot_with_its_twin_and_shows_it_lost(tmp_path)
     page's scene is the twin's kitchen, the loop's ticks carry its poses, a killed far end
     shows red as "lost: robot lost" on the page within 0.2 s (+ ticks), and a restarted one
     is driven again."""
-    from dsteleop.app.cli.compose import build
-    from dsteleop.app.cli.options import LoopOptions
+    from dsteleop.app.compose import LoopOptions, build
     from dsteleop.app.plants.kitchen import KitchenTask
     from dsteleop.app.session.schema import Status
     from dsteleop.app.viewer.panel import status_view
@@ -369,13 +314,30 @@ def test_serve_builds_the_linked_robot_with_its_twin_and_shows_it_lost(tmp_path)
             far.kill()
 
 
+def watchdog_halts_s(lines: list[str]) -> list[float]:
+    """How long each halt of robot-sim's watchdog lasted, by its log lines' times, until
+    commands came again (inf for one that never ended)."""
+
+    def t_s(line: str) -> float:
+        stamp = datetime.strptime(line[:23], "%Y-%m-%d %H:%M:%S,%f")
+        return stamp.timestamp()
+
+    halts, t_halt = [], None
+    for line in lines:
+        if "halted, no command for" in line:
+            t_halt = t_s(line)
+        elif "commands arrive; moving" in line and t_halt is not None:
+            halts.append(t_s(line) - t_halt)
+            t_halt = None
+    return halts + ([float("inf")] if t_halt is not None else [])
+
+
 def test_the_operators_stop_halts_a_linked_robot_through_the_loop(tmp_path):
     """The page's Stop (posted to the loop's controls, as the button does) with a robot over
     the link: the far end's measured palm (what the records carry) stands still within half a
     second, while commands keep flowing (the loop's halt, not the far end's watchdog), and
     moves again after Resume."""
-    from dsteleop.app.cli.compose import build
-    from dsteleop.app.cli.options import LoopOptions
+    from dsteleop.app.compose import LoopOptions, build
     from dsteleop.app.loop import tick as loop_tick
 
     cfg = link_file(tmp_path, free_port(), robot="panda")
@@ -403,9 +365,10 @@ def test_the_operators_stop_halts_a_linked_robot_through_the_loop(tmp_path):
         after = ticks(loop, 4.0)
         assert not any(r.stopped for r in after) and after[0].notes == ("resume",)
         assert speeds(after).max() > 0.01  # driven again
-        # Commands kept coming all along: the far end's watchdog never halted it.
-        assert not [ln for ln in far.lines if "halted, no command for" in ln], far.lines
         assert far.terminate()["applied"] > 0
+        # Commands kept coming all along: the far end's watchdog never halted it for longer
+        # than a tick starved by a busy machine (0.25 s seen at load 8) before they came again.
+        assert max(watchdog_halts_s(far.lines), default=0.0) < 0.5, far.lines
     finally:
         built.close()
         if far.proc.poll() is None:
@@ -577,51 +540,64 @@ def test_each_token_goes_with_its_entity_while_the_session_stays_open():
         observer.close()
 
 
-def _router(port: int) -> Any:
-    """A Zenoh router on 127.0.0.1:port, in this process (zenoh itself in router mode, as
-    `zenohd` runs it; no scouting)."""
-    import zenoh
+#: How the two ends can meet (docs/link.md, "Behind a Zenoh router, and peer to peer").
+SETUPS = (
+    # the docs' setup for a ROS 2 system: both ends listen nowhere (issue 33, problem 6)
+    "router, listen []",
+    # rmw_zenoh's own default: peers on a free loopback port, connected by the router's gossip
+    "router, rmw_zenoh's listen",
+    # peer to peer, the link's defaults (the robot listens, dsteleop connects)
+    "peer to peer, defaults",
+)
 
-    c = zenoh.Config()
-    c.insert_json5("mode", '"router"')
-    c.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
-    c.insert_json5("scouting/multicast/enabled", "false")
-    return zenoh.open(c)
+
+def setup_ends(setup: str, ep: str) -> tuple[bool, dict[str, list[str]], dict[str, list[str]]]:
+    """Whether `setup` has a router (on `ep`), and the far and near ends' endpoints."""
+    if setup == "router, listen []":
+        return True, {"listen": [], "connect": [ep]}, {"listen": [], "connect": [ep]}
+    if setup == "router, rmw_zenoh's listen":
+        rmw = {"listen": ["tcp/127.0.0.1:0"], "connect": [ep]}
+        return True, rmw, rmw
+    return False, {"listen": [ep]}, {"connect": [ep]}
 
 
-def test_both_ends_behind_a_router_as_docs_link_md_says(tmp_path):
-    """Both ends connect to a Zenoh router and listen nowhere (`listen: []`, docs/link.md's
-    setup for a ROS 2 system): the state and the commands flow through the router, and a
-    third client of the router sees both nodes' liveliness tokens (issue 33, problem 6: as
-    peers that do not listen, nothing flowed)."""
+@pytest.mark.parametrize("setup", SETUPS)
+def test_both_ends_meet_behind_a_router_and_peer_to_peer(tmp_path, setup):
+    """Behind a Zenoh router (a separate process, as `zenohd`) with docs/link.md's endpoints,
+    with rmw_zenoh's default ones, and peer to peer with the link's defaults: the state and the
+    commands flow, and a third session connected to the router (or to the far end), as a ROS
+    2 tool would be, sees both nodes' liveliness tokens (issue 33, problem 6: as peers that
+    listen nowhere, nothing flowed behind a router)."""
     from dsteleop.app.link.far import FAR_NODE
     from dsteleop.app.link.near import NEAR_NODE
 
     port = free_port()
     ep = f"tcp/127.0.0.1:{port}"
-    router = _router(port)
+    with_router, far_ends, near_ends = setup_ends(setup, ep)
+    router = Router(port) if with_router else None
     cfg = tmp_path / "link.json"
-    cfg.write_text(
-        json.dumps(
-            {
-                "far": {"listen": [], "connect": [ep]},
-                "near": {"listen": [], "connect": [ep]},
-                "connect_timeout_s": 10.0,
-            }
-        )
-    )
-    far = Far(cfg)
-    robot = None
-    third = open_session(Endpoints(connect=(ep,)), 5.0, "third")
+    cfg.write_text(json.dumps({"far": far_ends, "near": near_ends, "connect_timeout_s": 10.0}))
+    far = third = robot = None
     try:
+        far = Far(cfg)
+        third = open_session(Endpoints(connect=(ep,)), 5.0, "third")
         robot = ZenohRobot(read_link_config(cfg))
         t0 = time.monotonic()
-        st = robot.reset(0.0)  # the far end's state came through the router
+        st = robot.reset(0.0)  # the far end's state came through
         n0 = robot._pose_in.count
-        drive(robot, st.X, 2.0, t0)
-        assert robot.link_status(time.monotonic() - t0) == ""
-        # about 30 states a second kept coming
+        y0 = st.X.position[1]
+        seq = drive(robot, st.X, 2.0, t0)
+        now = time.monotonic() - t0
+        assert robot.link_status(now) == ""
+        # about 30 states a second kept coming, and the palm followed the commands
         assert robot._pose_in.count - n0 > 0.5 * 30 * 2.0
+        ys = []
+        for _ in range(30):
+            s = robot.state(time.monotonic() - t0)
+            assert s is not None
+            ys.append(s.X.position[1])
+            seq = drive(robot, st.X, 1 / 30, t0, seq)
+        assert max(abs(y - y0) for y in ys) > 0.01
         zid = str(robot.node.zid)
         keys = _wait_tokens(
             third,
@@ -637,25 +613,69 @@ def test_both_ends_behind_a_router_as_docs_link_md_says(tmp_path):
     finally:
         if robot is not None:
             robot.close()
-        third.close()
-        if far.proc.poll() is None:
+        if third is not None:
+            third.close()
+        if far is not None and far.proc.poll() is None:
             far.kill()
-        router.close()
-    # the commands went through the router too (about 60 sent; two that arrive together count
-    # as one applied, the newest wins: none was dropped as stale or out of order)
-    assert summary["applied"] > 0.25 * 30 * 2.0, summary
+        if router is not None:
+            router.close()
+    # the commands reached the far end (about 90 sent; two that arrive together count as one
+    # applied, the newest wins): none dropped as stale, out of order or stray
+    assert summary["applied"] > 0.25 * 30 * 3.0, summary
     assert summary["dropped_stale"] == summary["dropped_out_of_order"] == 0, summary
+    assert not any(n for d in summary["dropped_stray"].values() for n in d.values()), summary
+
+
+def _client(endpoint: str) -> Any:
+    """A Zenoh client session connected to `endpoint` only."""
+    import zenoh
+
+    c = zenoh.Config()
+    c.insert_json5("mode", '"client"')
+    c.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    c.insert_json5("scouting/multicast/enabled", "false")
+    return zenoh.open(c)
+
+
+class _Reliable:
+    """A publisher of one type on one topic with rmw_zenoh's attachment, as `Topic`, but
+    reliable (blocks rather than drops under congestion), so a test counts every message it
+    sent, and it can wait until the topic's subscriptions are matched."""
+
+    def __init__(self, session: Any, topic: str, ros_type: str) -> None:
+        import zenoh
+
+        self.key = ros.key_expr(0, topic, ros_type)
+        self.gid = ros.gid(str(session.zid()), topic, ros_type)
+        self._pub = session.declare_publisher(
+            self.key, congestion_control=zenoh.CongestionControl.BLOCK
+        )
+
+    def matched(self) -> bool:
+        return bool(self._pub.matching_status.matching)
+
+    def put(self, payload: bytes, seq: int, stamp_ns: int) -> None:
+        att = ros.encode_attachment(ros.Attachment(seq, stamp_ns, self.gid))
+        self._pub.put(payload, attachment=att)
+
+    def put_bare(self, payload: bytes) -> None:
+        """Without the attachment."""
+        self._pub.put(payload)
 
 
 def _stray_publishers(session: Any, topic: str) -> list[tuple[str, Any]]:
     """One stray message of each kind on `topic` (a PoseStamped topic): (its drop reason,
-    a function that sends it)."""
+    a function that sends it), once their publishers are matched to the topic's subscription
+    (at most 10 s). The stray pose is 20 cm from the robot's home palm."""
     ts = ros.typestore()
     string = "std_msgs/msg/String"
-    wrong = Topic(session, 0, topic, ros.JOINT_STATE)
-    text = Topic(session, 0, topic, string)
-    pose = Topic(session, 0, topic, ros.POSE_STAMPED)
-    p, R = np.array([0.58, 0.30, 0.50]), np.diag([-1.0, 1.0, -1.0])
+    wrong = _Reliable(session, topic, ros.JOINT_STATE)
+    text = _Reliable(session, topic, string)
+    pose = _Reliable(session, topic, ros.POSE_STAMPED)
+    t_end = time.monotonic() + 10.0
+    while not all(x.matched() for x in (wrong, text, pose)) and time.monotonic() < t_end:
+        time.sleep(0.05)
+    p, R = np.array([0.58, 0.10, 0.50]), np.diag([-1.0, 1.0, -1.0])
     seq = iter(range(10**6, 2 * 10**6))
 
     def now() -> int:
@@ -679,7 +699,7 @@ def _stray_publishers(session: Any, topic: str) -> list[tuple[str, Any]]:
         pose.put(data[: len(data) // 2], next(seq), s)
 
     def no_attachment() -> None:
-        session.put(pose.key, ros.encode_pose(p, R, "base", now()))
+        pose.put_bare(ros.encode_pose(p, R, "base", now()))
 
     return [
         ("wrong_type", joint_state),
@@ -699,11 +719,10 @@ def test_stray_messages_at_the_far_end_are_dropped_counted_and_logged(tmp_path):
     cfg = link_file(tmp_path, port)
     far = Far(cfg)
     config = LinkConfig()
-    session = open_session(Endpoints(connect=(f"tcp/127.0.0.1:{port}",)), 5.0, "stray")
-    good = Topic(session, 0, config.topics.command_pose, ros.POSE_STAMPED)
+    session = _client(f"tcp/127.0.0.1:{port}")
+    good = _Reliable(session, config.topics.command_pose, ros.POSE_STAMPED)
     strays = _stray_publishers(session, config.topics.command_pose)
     p, R = np.array([0.58, 0.30, 0.50]), np.diag([-1.0, 1.0, -1.0])
-    time.sleep(0.5)  # the subscriptions reach the far end
     rounds = 4
     try:
         seq = 0
@@ -718,7 +737,6 @@ def test_stray_messages_at_the_far_end_are_dropped_counted_and_logged(tmp_path):
         assert far.proc.poll() is None, "".join(far.lines)  # still running
         summary = far.terminate()
     finally:
-        good.close()
         session.close()
         if far.proc.poll() is None:
             far.kill()
@@ -730,7 +748,9 @@ def test_stray_messages_at_the_far_end_are_dropped_counted_and_logged(tmp_path):
         "refused": rounds,
     }
     assert sum(summary["dropped_stray"][config.topics.command_fingers].values()) == 0
-    assert summary["applied"] == rounds * len(strays)  # every good command, none of the rest
+    # the good commands between them are applied (two that come together, when a busy
+    # machine starves robot-sim, count as one: the newest wins); the strays none (above)
+    assert 0.75 * rounds * len(strays) <= summary["applied"] <= rounds * len(strays), summary
     logged = [ln for ln in far.lines if ": dropped (" in ln]
     assert len(logged) == 4, logged  # one per reason: the rest came within 5 s
     assert any("carries sensor_msgs::msg::dds_::JointState_" in ln for ln in logged), logged
@@ -738,36 +758,41 @@ def test_stray_messages_at_the_far_end_are_dropped_counted_and_logged(tmp_path):
     assert "Traceback" not in "".join(far.lines)
 
 
-def test_stray_messages_at_the_near_end_are_dropped_and_counted(tmp_path):
+def test_stray_messages_at_the_near_end_are_dropped_and_counted(tmp_path, caplog):
     """The same strays on the palm pose state topic, and a JointState without the robot's
-    joints on the joints topic, while robot-sim publishes good states: the near end drops
-    and counts them, its state stays the far end's (frame "base", fresh), never an error."""
+    joints on the joints topic, while robot-sim publishes good states: the near end drops,
+    counts and logs them, its state stays the far end's (frame "base", fresh), never an
+    error."""
+    caplog.set_level(logging.WARNING, logger="dsteleop.app.link.session")
     port = free_port()
     cfg = link_file(tmp_path, port)
     far = Far(cfg)
     config = LinkConfig()
     robot = ZenohRobot(read_link_config(cfg))
-    session = open_session(Endpoints(connect=(f"tcp/127.0.0.1:{port}",)), 5.0, "stray")
+    # anyone in the graph, e.g. a ROS 2 tool: a Zenoh client of the far end, opened here
+    # without the link's own session code
+    session = _client(f"tcp/127.0.0.1:{port}")
     strays = _stray_publishers(session, config.topics.state_pose)
-    joints = Topic(session, 0, config.topics.state_joints, ros.JOINT_STATE)
+    joints = _Reliable(session, config.topics.state_joints, ros.JOINT_STATE)
     try:
         t0 = time.monotonic()
         st = robot.reset(0.0)
-        time.sleep(0.5)  # the stray publishers reach the near end (through the far end)
         for k in range(3):
             for _, send in strays:
                 send()
                 stamp = time.time_ns()
                 joints.put(ros.encode_joints(("elbow",), np.zeros(1), stamp), 10**6 + k, stamp)
-                now = time.monotonic() - t0
-                s = robot.state(now)
+                s = robot.state(time.monotonic() - t0)  # never an error, never a stray
                 assert s is not None and np.linalg.norm(s.X.position - st.X.position) < 0.01
-                assert robot.link_status(now) == ""
                 time.sleep(0.03)
         time.sleep(0.2)
         dropped = robot.dropped
+        # the far end's states went on coming (a busy machine may delay one past 0.2 s)
+        t_end = time.monotonic() + 2.0
+        while robot.link_status(time.monotonic() - t0) != "":
+            assert time.monotonic() < t_end, robot.link_status(time.monotonic() - t0)
+            time.sleep(0.01)
     finally:
-        joints.close()
         session.close()
         robot.close()
         far.terminate()
@@ -778,6 +803,11 @@ def test_stray_messages_at_the_near_end_are_dropped_and_counted(tmp_path):
         "refused": 3,
     }
     assert dropped[config.topics.state_joints]["refused"] == 15
+    # logged: the first of each reason on each topic (the rest came within 5 s)
+    logged = [r.getMessage() for r in caplog.records if ": dropped (" in r.getMessage()]
+    assert len(logged) == 5, logged
+    assert sum(config.topics.state_joints in m for m in logged) == 1, logged
+    assert any("lacks joint " in m and "of robot iiwa" in m for m in logged), logged
 
 
 def test_a_dead_far_end_ends_run_after_robot_lost_s(tmp_path):
@@ -826,12 +856,13 @@ def test_a_dead_far_end_ends_run_after_robot_lost_s(tmp_path):
 
 
 def test_a_dead_far_end_ends_run_at_the_time_limit(tmp_path):
-    """With a long `--robot-lost-s`, `--time-limit` still ends a run whose robot is lost:
-    at the limit, exit code 3 and the reason."""
+    """With `--robot-lost-s` at its default (5 s, longer than what is left of the trial),
+    `--time-limit` still ends a run whose robot is lost: at the limit, exit code 3 and the
+    reason (issue 33, problem 8: this run went on for 150 s and exited 0)."""
     cfg = link_file(tmp_path, free_port())
     far = Far(cfg)
     run = subprocess.Popen(
-        [*CLI, "run", "--robot", f"zenoh:{cfg}", "--time-limit", "4", "--robot-lost-s", "60"],
+        [*CLI, "run", "--robot", f"zenoh:{cfg}", "--time-limit", "4"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -855,3 +886,24 @@ def test_a_dead_far_end_ends_run_at_the_time_limit(tmp_path):
     summary = json.loads(out.strip().splitlines()[-1])
     assert summary["stopped_by"] == "robot-lost" and summary["outcome"] == "none"
     assert 4.0 * 30 * 0.8 <= summary["ticks"] <= 4.0 * 30 * 1.1, summary["ticks"]
+
+
+def test_quick_bench_reports_the_links_latency():
+    """`dsteleop bench --only link --quick`: robot-sim on a free port driven for 10 s, the
+    latency's percentiles and the counts in its JSON (the figures themselves are for
+    docs/link.md, never asserted: this machine is shared)."""
+    r = subprocess.run(
+        [*CLI, "bench", "--only", "link", "--quick"], capture_output=True, text=True, timeout=300
+    )
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    link = out["link"]
+    assert link["seconds"] == 10.0 and link["rate_hz"] == 30.0
+    assert link["endpoint"].startswith("tcp/127.0.0.1:")
+    lat = link["latency_ms"]
+    assert 0 < lat["p50"] <= lat["p95"] <= lat["p99"] <= lat["max"]
+    assert lat["n"] == link["applied"] and 0 < link["applied"] <= link["sent"]
+    assert link["sent"] >= 0.7 * 30 * 10
+    assert 0 < link["near_apply_us"]["median"] <= link["near_apply_us"]["p99"]
+    assert 0 <= link["state_age_ms"]["p50"] <= link["state_age_ms"]["p99"]
+    assert len(out["machine"]["load_average"]) == 3 and out["machine"]["cores"] >= 1

@@ -14,9 +14,8 @@ from typing import Any
 
 import pytest
 
-from dsteleop.app.cli.compose import build
 from dsteleop.app.cli.main import main
-from dsteleop.app.cli.options import LoopOptions
+from dsteleop.app.compose import LoopOptions, build
 from dsteleop.app.session.schema import Status, TickRecord
 from dsteleop.tracking.pipeline import TrackingStream
 from dsteleop.tracking.sources import VideoFileSource

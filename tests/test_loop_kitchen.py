@@ -13,8 +13,7 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import NDArray
 
-from dsteleop.app.cli.compose import build
-from dsteleop.app.cli.options import LoopOptions
+from dsteleop.app.compose import LoopOptions, build
 from dsteleop.app.inputs.demo import DemoCamera
 from dsteleop.app.inputs.tracked import TrackedHandInput
 from dsteleop.app.loop import LoopConfig, TeleopLoop

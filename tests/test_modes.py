@@ -246,6 +246,7 @@ def test_bad_mode_input_is_one_line_and_exit_2(
 
 def test_tune_mode_scalar_searches_its_own_parameters(tmp_path: Path) -> None:
     """`tune --mode scalar`: its default space, trials of S and scalar, its metric as value."""
+    from dsteleop.app.tasks.executor import LocalExecutor
     from dsteleop.app.tune import driver
     from dsteleop.app.tune.objective import Objective
 
@@ -261,7 +262,7 @@ def test_tune_mode_scalar_searches_its_own_parameters(tmp_path: Path) -> None:
     old["space"] = list(default_space("DS"))
     assert driver.TuneSettings.from_dict(old).mode == "DS"
     study = driver.open_study(tmp_path, settings, resume=False)
-    recs = driver.run_trials(study, settings, driver.LocalExecutor(), 2)
+    recs = driver.run_trials(study, settings, LocalExecutor(), 2)
     assert [r.state for r in recs] == ["COMPLETE", "COMPLETE"], [r.error for r in recs]
     for r in recs:
         assert set(r.params) == {"scalar.cap", "scalar.scale"}
@@ -403,7 +404,7 @@ def test_every_command_with_param_accepts_ds_cap(command: str, args: tuple[str, 
     if command == "sim":
         cfg = cmd.study.arbitration
     elif command == "tune":
-        cfg = ArbitrationConfig.from_dict(cmd.given["base"])
+        cfg = ArbitrationConfig.from_dict(cmd.plan.given["base"])
     else:
         cfg = cmd.options.loop.arbitration
     p = cfg.params_of("DS")

@@ -17,8 +17,7 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from dsteleop.app.cli.compose import build
-from dsteleop.app.cli.options import LoopOptions
+from dsteleop.app.compose import LoopOptions, build
 from dsteleop.app.loop import LoopConfig
 from dsteleop.app.replay.core import as_recorded, replay_session
 from dsteleop.app.session.reader import Session, read_session

@@ -264,8 +264,7 @@ def test_the_panda_grasps_every_utensil_on_its_own() -> None:
 
 
 def test_a_panda_session_records_its_robot() -> None:
-    from dsteleop.app.cli.compose import build
-    from dsteleop.app.cli.options import LoopOptions
+    from dsteleop.app.compose import LoopOptions, build
 
     built = build(LoopOptions.of("demo", robot="panda"), realtime=False)
     try:
@@ -279,8 +278,7 @@ def test_a_panda_session_records_its_robot() -> None:
 
 
 def _demo_successes(mode: Mode, robot: str) -> int:
-    from dsteleop.app.cli.compose import build
-    from dsteleop.app.cli.options import LoopOptions
+    from dsteleop.app.compose import LoopOptions, build
     from dsteleop.app.loop import LoopConfig
 
     n = 0
@@ -310,8 +308,7 @@ def test_the_page_draws_the_panda_and_its_one_gauge_of_fingers() -> None:
     is drawn from the Panda's URDF meshes, the gauges have one finger dimension."""
     import time
 
-    from dsteleop.app.cli.compose import build
-    from dsteleop.app.cli.options import LoopOptions
+    from dsteleop.app.compose import LoopOptions, build
     from dsteleop.app.loop.timing import ManualClock
     from dsteleop.app.viewer.server import Viewer, ViewerConfig
 

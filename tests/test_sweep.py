@@ -238,7 +238,7 @@ def test_sweep_on_a_local_two_worker_cluster_writes_resumes_and_pairs(
 
 
 def test_the_sweep_module_and_a_cell_leave_ray_unloaded() -> None:
-    """Only app/tune/cluster.py imports Ray: a cell computes in plain Python."""
+    """Only app/tasks/cluster.py imports Ray: a cell computes in plain Python."""
     code = (
         "import sys\n"
         "import dsteleop.app.cli.sim\n"
@@ -415,7 +415,7 @@ def test_tune_sweep_merges_the_modes_best_files_as_both_json() -> None:
         path = Path(os.environ.get("TMPDIR", "/tmp")) / f"tune_sweep_{os.getpid()}_{name}.json"
         path.write_text(json.dumps(d))
         try:
-            return config_from_file(path, [])[0]
+            return config_from_file(path, [])
         finally:
             path.unlink()
 

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from dsteleop.app.cli.main import main
-from dsteleop.app.cli.options import LoopOptions
+from dsteleop.app.compose import LoopOptions
 from dsteleop.app.loop import LoopConfig, TeleopLoop
 from dsteleop.app.loop.timing import ManualClock, RateClock
 from dsteleop.app.session.writer import HISTORY_FILE, META, TICKS
@@ -98,7 +98,7 @@ def test_a_rate_outside_the_documented_range_is_refused_with_the_reason(
 def test_the_world_advances_one_loop_period_per_tick() -> None:
     """At 10 Hz a tick is 0.1 s of the world's time, at 60 Hz 1/60 s: the robot, the task
     and its time limit keep the loop's time."""
-    from dsteleop.app.cli.compose import build
+    from dsteleop.app.compose import build
 
     for rate in (10.0, 60.0):
         built = build(LoopOptions.of("demo", LoopConfig(rate_hz=rate)), realtime=False)
@@ -115,7 +115,7 @@ def test_the_world_advances_one_loop_period_per_tick() -> None:
 def test_a_demo_run_takes_about_the_same_world_time_at_any_rate() -> None:
     """The demo operator moves in seconds: at 20 and 60 Hz it finishes in about the same
     loop time (before, the world ran at 2/3 and 2x speed, and the time differed ~2x)."""
-    from dsteleop.app.cli.compose import build
+    from dsteleop.app.compose import build
 
     times = {}
     for rate in (20.0, 60.0):
@@ -419,8 +419,8 @@ def test_an_explicit_input_delay_of_zero_switches_off_the_demo_worlds_delay() ->
     a choice (before, 0 meant "the world's value", so the delay could not be switched off)."""
     import argparse
 
-    from dsteleop.app.cli.compose import build
     from dsteleop.app.cli.options import add_loop_options, loop_options
+    from dsteleop.app.compose import build
     from dsteleop.app.operator.world import Impairments
 
     parser = argparse.ArgumentParser()

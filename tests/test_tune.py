@@ -23,6 +23,7 @@ import pytest
 from dsteleop.app.cli.main import main
 from dsteleop.app.cli.options import add_loop_options, loop_options
 from dsteleop.app.study.planar import SimConfig
+from dsteleop.app.tasks.executor import LocalExecutor
 from dsteleop.app.tune import driver, edges
 from dsteleop.app.tune.objective import Objective, key
 from dsteleop.app.tune.space import DEFAULT_SPACE, parse_dimension, parse_space
@@ -167,11 +168,13 @@ def test_paired_difference_interval() -> None:
 
 
 def test_the_trial_function_is_plain_python_without_ray() -> None:
-    """The trial function runs alone (no cluster); no module but app/tune/cluster.py imports
-    Ray: the tune command's own modules, the study and replay leave it unloaded."""
+    """The trial function runs alone (no cluster); no module but app/tasks/cluster.py imports
+    Ray: the tune command's own modules, the executors' seam, the study and replay leave it
+    unloaded."""
     code = (
         "import sys\n"
         "import dsteleop.app.cli.tune, dsteleop.app.tune.driver, dsteleop.app.tune.holdout\n"
+        "import dsteleop.app.tasks.executor, dsteleop.app.tasks.progress\n"
         "import dsteleop.app.tune.report, dsteleop.app.tune.figures, dsteleop.app.replay.core\n"
         "from dsteleop.app.tune.trial import StudyBatch, study_task\n"
         "from dsteleop.arbitration import ArbitrationConfig\n"
@@ -209,7 +212,7 @@ def _settings(sampler: str, seed: int, space: list[str], trajectories: int = 1) 
 def _local_sequence(settings: Any, n: int, folder: Path) -> list[dict[str, Any]]:
     folder.mkdir()
     study = driver.open_study(folder, settings, resume=False)
-    recs = driver.run_trials(study, settings, driver.LocalExecutor(), n)
+    recs = driver.run_trials(study, settings, LocalExecutor(), n)
     assert [r.state for r in recs] == ["COMPLETE"] * n
     return [r.params for r in sorted(recs, key=lambda r: r.number)]
 
@@ -235,7 +238,7 @@ def test_interrupted_trials_are_asked_again_on_resume(tmp_path: Path) -> None:
     study = driver.open_study(tmp_path, None, resume=True)
     assert driver.stored_settings(study) == settings
     assert driver.requeue_interrupted(study) == 1 and driver.counted(study) == 0
-    (rec,) = driver.run_trials(study, settings, driver.LocalExecutor(), 1)
+    (rec,) = driver.run_trials(study, settings, LocalExecutor(), 1)
     assert rec.state == "COMPLETE" and rec.params == lost.params and rec.number == 1
     assert [r.number for r in driver.records(study, settings.space)] == [1]
 
@@ -244,7 +247,7 @@ def test_a_raising_trial_is_recorded_and_the_study_goes_on(tmp_path: Path) -> No
     """In this process: p = 0.8 is outside p's domain, so those trials raise (ConfigError)."""
     settings = _settings("grid", 0, ["p=0.8,4", "window=3,5"])
     study = driver.open_study(tmp_path, settings, resume=False)
-    recs = driver.run_trials(study, settings, driver.LocalExecutor(), 4)
+    recs = driver.run_trials(study, settings, LocalExecutor(), 4)
     by_p = {(r.params["p"], r.params["window"]): r for r in recs}
     assert len(by_p) == 4
     for (p, _), r in by_p.items():

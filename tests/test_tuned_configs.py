@@ -37,7 +37,7 @@ def test_every_shipped_configuration_is_a_config_file_with_both_modes_tuned() ->
     files = _configs()
     assert len(files) == 2 * 7 + 2
     for path in files:
-        arb, _ = config_from_file(path, [])
+        arb = config_from_file(path, [])
         data = json.loads(path.read_text())
         assert set(data["objective"]) == {"DS", "scalar"}, path
         for mode, found in data["objective"].items():
@@ -68,7 +68,7 @@ def test_the_tuned_disagreement_headline_holds_on_held_out_people() -> None:
     grasp succeed under DS, in their own grasp, and mostly fail under S (held out: 0.998 and
     0.383 over 1000 people); 60 people of seed 1 with wide margins."""
     world = _disagreement_world()
-    arb, _ = config_from_file(TUNED / "equal-count" / "disagreement.json", [])
+    arb = config_from_file(TUNED / "equal-count" / "disagreement.json", [])
     cfg = planar.SimConfig(
         trajectories=60,
         seed=1,

@@ -24,8 +24,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 import pytest
 
-from dsteleop.app.cli.compose import build
-from dsteleop.app.cli.options import LoopOptions
+from dsteleop.app.compose import LoopOptions, build
 from dsteleop.app.loop import LoopConfig
 from dsteleop.app.ports import HumanInput
 from dsteleop.app.session.schema import Status, TickRecord
@@ -33,7 +32,7 @@ from dsteleop.errors import DsteleopError
 from dsteleop.robot.scene import SceneGeometry, ScenePoses
 
 if TYPE_CHECKING:
-    from dsteleop.app.cli.compose import Built
+    from dsteleop.app.compose import Built
     from dsteleop.app.loop import TeleopLoop
     from dsteleop.app.loop.timing import ManualClock
 

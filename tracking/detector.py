@@ -32,7 +32,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from dsteleop.errors import InputError
+from dsteleop.errors import ConfigError, InputError
 from dsteleop.tracking.types import Detection, Handedness, Image, other_hand
 
 log = logging.getLogger(__name__)
@@ -68,7 +68,7 @@ class DetectorConfig:
 
     def __post_init__(self) -> None:
         if self.max_num_hands < 1:
-            raise ValueError(f"max_num_hands must be >= 1, got {self.max_num_hands!r}")
+            raise ConfigError(f"max_num_hands must be >= 1, got {self.max_num_hands!r}")
         for name in (
             "min_detection_confidence",
             "min_presence_confidence",
@@ -76,7 +76,7 @@ class DetectorConfig:
         ):
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:
-                raise ValueError(f"{name} must be in [0, 1], got {value!r}")
+                raise ConfigError(f"{name} must be in [0, 1], got {value!r}")
 
 
 class HandDetector(Protocol):

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dsteleop.arbitration.se3 import so3_exp, so3_log
+from dsteleop.errors import ConfigError
 from dsteleop.tracking.types import Array
 
 
@@ -57,9 +58,9 @@ class OneEuroConfig:
         for name in ("min_cutoff_hz", "d_cutoff_hz"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be finite and > 0, got {value!r}")
+                raise ConfigError(f"{name} must be finite and > 0, got {value!r}")
         if not (math.isfinite(self.beta) and self.beta >= 0):
-            raise ValueError(f"beta must be finite and >= 0, got {self.beta!r}")
+            raise ConfigError(f"beta must be finite and >= 0, got {self.beta!r}")
 
 
 @dataclass(frozen=True)

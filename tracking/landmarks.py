@@ -12,6 +12,8 @@ from typing import Final
 import numpy as np
 from numpy.typing import NDArray
 
+from dsteleop.errors import ContractError
+
 N_LANDMARKS: Final = 21
 
 WRIST: Final = 0
@@ -84,11 +86,11 @@ CONNECTIONS: Final[tuple[tuple[int, int], ...]] = (
 
 
 def check_landmarks(landmarks: NDArray[np.float64], name: str = "landmarks") -> None:
-    """Raise ValueError unless `landmarks` is a (21, 3) array.
+    """Raise ContractError unless `landmarks` is a (21, 3) array.
 
     Args:
         landmarks: array to check.
         name: how to call it in the message.
     """
     if landmarks.shape != (N_LANDMARKS, 3):
-        raise ValueError(f"{name} must have shape (21, 3), got {landmarks.shape}")
+        raise ContractError(f"{name} must have shape (21, 3), got {landmarks.shape}")

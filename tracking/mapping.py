@@ -41,6 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dsteleop.arbitration.se3 import HandState, so3_exp
+from dsteleop.errors import ConfigError, ContractError
 from dsteleop.tracking.landmarks import FINGER_NAMES
 from dsteleop.tracking.types import Array, HandSample
 
@@ -91,7 +92,7 @@ def human_openness(robot_openness: Array, mix: Array = _FINGER_MIX) -> Array:
 def _vec3(name: str, value: tuple[float, float, float]) -> Array:
     a = np.asarray(value, dtype=np.float64)
     if a.shape != (3,) or not np.isfinite(a).all():
-        raise ValueError(f"{name} must be 3 finite numbers, got {value!r}")
+        raise ConfigError(f"{name} must be 3 finite numbers, got {value!r}")
     return a
 
 
@@ -127,20 +128,20 @@ class MappingConfig:
         for f, src in fingers:
             bad = [h for h in src if h not in FINGER_NAMES]
             if not src or bad:
-                raise ValueError(f"robot finger {f!r} must follow human fingers of {FINGER_NAMES}")
+                raise ConfigError(f"robot finger {f!r} must follow human fingers of {FINGER_NAMES}")
         lo = _vec3("workspace_min_m", self.workspace_min_m)
         hi = _vec3("workspace_max_m", self.workspace_max_m)
         if not (lo < hi).all():
-            raise ValueError("workspace_min_m must be below workspace_max_m on every axis")
+            raise ConfigError("workspace_min_m must be below workspace_max_m on every axis")
         p0 = _vec3("neutral_position_m", self.neutral_position_m)
         if not ((lo <= p0) & (p0 <= hi)).all():
-            raise ValueError("neutral_position_m must lie inside the workspace")
+            raise ConfigError("neutral_position_m must lie inside the workspace")
         s = _vec3("scale", self.scale)
         if not (s > 0).all():
-            raise ValueError(f"scale must be > 0 on every axis, got {self.scale!r}")
+            raise ConfigError(f"scale must be > 0 on every axis, got {self.scale!r}")
         r0 = _vec3("neutral_rotvec_rad", self.neutral_rotvec_rad)
         if float(np.linalg.norm(r0)) > math.pi + 1e-9:
-            raise ValueError("neutral_rotvec_rad must have a norm <= pi")
+            raise ConfigError("neutral_rotvec_rad must have a norm <= pi")
 
     @property
     def R_base_cam(self) -> Array:
@@ -174,7 +175,7 @@ class WorkspaceMapping:
     @staticmethod
     def _pose(sample: HandSample) -> tuple[Array, Array]:
         if not sample.has_pose:
-            raise ValueError("sample has no hand pose yet (no hand seen)")
+            raise ContractError("sample has no hand pose yet (no hand seen)")
         return sample.p_cam_palm_m, sample.R_cam_palm
 
     def calibrate(self, sample: HandSample, to_neutral: bool = False) -> None:
@@ -199,7 +200,7 @@ class WorkspaceMapping:
         The first call anchors the current hand on the neutral robot pose.
 
         Raises:
-            ValueError: the sample has no pose (no hand seen yet).
+            ContractError: the sample has no pose (no hand seen yet).
         """
         p_cam, R_cam = self._pose(sample)
         if self._anchor_cam is None or self._anchor_robot is None:
@@ -222,10 +223,10 @@ class WorkspaceMapping:
         in the robot frame and feed the synthetic hand.
 
         Raises:
-            ValueError: before the mapping has an anchor.
+            ContractError: before the mapping has an anchor.
         """
         if self._anchor_cam is None or self._anchor_robot is None:
-            raise ValueError("mapping has no anchor yet: calibrate first")
+            raise ContractError("mapping has no anchor yet: calibrate first")
         (p_h0, R_h0), (p_r0, R_r0) = self._anchor_cam, self._anchor_robot
         Rbc = self.config.R_base_cam
         p_cam = p_h0 + Rbc.T @ ((state.position - p_r0) / np.array(self.config.scale))

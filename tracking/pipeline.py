@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from dsteleop.errors import ConfigError, ContractError
 from dsteleop.tracking.detector import DetectorConfig, HandDetector, make_detector
 from dsteleop.tracking.filters import HandFilterConfig, OneEuroFilter, SO3OneEuroFilter
 from dsteleop.tracking.pose import CameraIntrinsics, PalmPose, PoseConfig, estimate_palm_pose
@@ -61,7 +62,7 @@ class TrackerConfig:
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.filter_reset_s) and self.filter_reset_s >= 0):
-            raise ValueError(f"filter_reset_s must be >= 0, got {self.filter_reset_s!r}")
+            raise ConfigError(f"filter_reset_s must be >= 0, got {self.filter_reset_s!r}")
 
 
 class HandTracker:
@@ -138,7 +139,7 @@ class HandTracker:
         if frame.detections is not None:
             return frame.detections
         if frame.image is None:
-            raise ValueError("frame has neither image nor detections")
+            raise ContractError("frame has neither image nor detections")
         return tuple(self.detector.detect(frame.image, frame.t_capture_s))
 
     def process(self, frame: Frame) -> HandSample:

@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from dsteleop.errors import ConfigError, ContractError
 from dsteleop.tracking.landmarks import (
     FINGER_CHAINS,
     INDEX_MCP,
@@ -84,9 +85,9 @@ class CameraIntrinsics:
     def from_hfov(cls, width_px: int, height_px: int, hfov_deg: float) -> CameraIntrinsics:
         """Square pixels, centred principal point, given the horizontal field of view [deg]."""
         if not 1.0 < hfov_deg < 179.0:
-            raise ValueError(f"hfov_deg must be in (1, 179), got {hfov_deg!r}")
+            raise ConfigError(f"hfov_deg must be in (1, 179), got {hfov_deg!r}")
         if width_px <= 0 or height_px <= 0:
-            raise ValueError(f"image size must be positive, got {width_px}x{height_px}")
+            raise ConfigError(f"image size must be positive, got {width_px}x{height_px}")
         f = 0.5 * width_px / math.tan(math.radians(hfov_deg) / 2.0)
         return cls(width_px, height_px, f, f, 0.5 * width_px, 0.5 * height_px)
 
@@ -133,12 +134,12 @@ class PoseConfig:
         for name in ("hfov_deg", "hand_scale", "palm_size_m"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be finite and > 0, got {value!r}")
+                raise ConfigError(f"{name} must be finite and > 0, got {value!r}")
         if len(self.theta_open_rad) != 5 or len(self.theta_closed_rad) != 5:
-            raise ValueError("theta_open_rad and theta_closed_rad need 5 values (thumb..little)")
+            raise ConfigError("theta_open_rad and theta_closed_rad need 5 values (thumb..little)")
         for lo, hi in zip(self.theta_open_rad, self.theta_closed_rad, strict=True):
             if not 0.0 <= lo < hi:
-                raise ValueError(f"need 0 <= theta_open < theta_closed per finger, got {lo}, {hi}")
+                raise ConfigError(f"need 0 <= theta_open < theta_closed per finger, got {lo}, {hi}")
 
 
 @dataclass(frozen=True)
@@ -273,5 +274,5 @@ def hand_scale_for_depth(pose: PalmPose, true_depth_m: float, config: PoseConfig
         config: the config `pose` was estimated with.
     """
     if not (math.isfinite(true_depth_m) and true_depth_m > 0):
-        raise ValueError(f"true_depth_m must be finite and > 0, got {true_depth_m!r}")
+        raise ContractError(f"true_depth_m must be finite and > 0, got {true_depth_m!r}")
     return config.hand_scale * true_depth_m / float(pose.p_cam_palm_m[2])

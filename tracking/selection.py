@@ -20,6 +20,7 @@ from typing import Literal
 
 import numpy as np
 
+from dsteleop.errors import ConfigError
 from dsteleop.tracking.landmarks import PALM_CENTRE
 from dsteleop.tracking.types import Array, Detection, Handedness
 
@@ -45,11 +46,11 @@ class SelectionConfig:
 
     def __post_init__(self) -> None:
         if self.hand not in ("any", "Left", "Right"):
-            raise ValueError(f"hand must be 'any', 'Left' or 'Right', got {self.hand!r}")
+            raise ConfigError(f"hand must be 'any', 'Left' or 'Right', got {self.hand!r}")
         if not (math.isfinite(self.max_jump) and self.max_jump > 0):
-            raise ValueError(f"max_jump must be finite and > 0, got {self.max_jump!r}")
+            raise ConfigError(f"max_jump must be finite and > 0, got {self.max_jump!r}")
         if not (math.isfinite(self.reacquire_after_s) and self.reacquire_after_s >= 0):
-            raise ValueError(f"reacquire_after_s must be >= 0, got {self.reacquire_after_s!r}")
+            raise ConfigError(f"reacquire_after_s must be >= 0, got {self.reacquire_after_s!r}")
 
 
 def palm_centre_image(detection: Detection, aspect: float) -> Array:

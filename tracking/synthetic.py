@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dsteleop.arbitration.se3 import HandState, so3_exp
+from dsteleop.errors import ConfigError
 from dsteleop.tracking.landmarks import FINGER_CHAINS, N_LANDMARKS, PALM_CENTRE, WRIST
 from dsteleop.tracking.pose import (
     CameraIntrinsics,
@@ -265,7 +266,7 @@ class SyntheticSource:
         config: PoseConfig | None = None,
     ) -> None:
         if not (math.isfinite(fps) and fps > 0):
-            raise ValueError(f"fps must be > 0, got {fps!r}")
+            raise ConfigError(f"fps must be > 0, got {fps!r}")
         self.trajectory = trajectory
         self.fps = fps
         self.duration_s = duration_s

@@ -138,7 +138,9 @@ def _belief_samples(rng: np.random.Generator, n_fingers: int, reps: int, mode: s
     for i in range(reps):
         inp = inputs[i % len(inputs)]
         t0 = time.perf_counter()
-        got = inference.step(candidates, params, _row(inp.X_human), _row(inp.X_human_prev))
+        got = inference.step(
+            candidates, params, _row(inp.X_current), _row(inp.X_human), _row(inp.X_human_prev)
+        )
         tick = ArbitrationInput(
             X_human=inp.X_human, X_human_prev=inp.X_human_prev, X_human_start=inp.X_human_start,
             X_current=inp.X_current, X_prev=inp.X_prev, X_start=inp.X_start,

@@ -61,8 +61,7 @@ def make_session(folder: Path, seconds: float = SESSION_S) -> str:
     it (module docstring); returns what the frames are."""
     import json
 
-    from dsteleop.app.cli.compose import build
-    from dsteleop.app.cli.options import LoopOptions
+    from dsteleop.app.compose import LoopOptions, build
     from dsteleop.app.loop import LoopConfig
     from dsteleop.app.session.video import FRAMES, Mp4Writer
     from dsteleop.app.session.video import VIDEO as SESSION_VIDEO

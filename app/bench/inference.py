@@ -26,8 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from dsteleop.app.cli.compose import build
-from dsteleop.app.cli.options import LoopOptions
+from dsteleop.app.compose import LoopOptions, build
 
 
 def run(quick: bool = False) -> dict[str, Any]:

@@ -93,8 +93,7 @@ def _one(
     Rerun logger when `rerun` is given, following the frames unless not `follow`."""
     video = shared_video()
     if video is None:
-        from dsteleop.app.cli.compose import build
-        from dsteleop.app.cli.options import LoopOptions
+        from dsteleop.app.compose import LoopOptions, build
 
         built = build(LoopOptions.of("demo", LoopConfig(mode=Mode.DS), rerun=rerun), realtime=True)
         built.loop.follow_frames = follow

@@ -28,7 +28,7 @@ def run(quick: bool) -> dict[str, Any]:
     from dsteleop.app.bench import machine
     from dsteleop.app.study.planar import SimConfig
     from dsteleop.app.study.sweep import AXES, Grid, default_levels, run_sweep
-    from dsteleop.app.tune.cluster import RayExecutor
+    from dsteleop.app.tasks.cluster import RayExecutor
 
     trajectories = 20 if quick else 100
     levels: dict[str, tuple[float, ...]] = {axis: (0.0, default_levels(axis)[1]) for axis in AXES}

@@ -27,8 +27,8 @@ log = logging.getLogger(__name__)
 
 
 def run(quick: bool) -> dict[str, Any]:
+    from dsteleop.app.tasks.cluster import RayExecutor
     from dsteleop.app.tune import driver
-    from dsteleop.app.tune.cluster import RayExecutor
     from dsteleop.app.tune.objective import Objective
     from dsteleop.app.tune.space import as_values, parse_space
     from dsteleop.app.tune.trial import StudyBatch, study_task

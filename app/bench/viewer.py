@@ -121,9 +121,9 @@ def run_config(
     clients: int, kind: str, seconds: float, settle_s: float, scene_hz: float = 30.0
 ) -> dict[str, Any]:
     """One configuration: the demo session, `clients` clients of `kind`, measured."""
-    from dsteleop.app.cli.compose import build
-    from dsteleop.app.cli.options import LoopOptions
-    from dsteleop.app.cli.serve import RESET_AFTER_S, hand_mapping
+    from dsteleop.app.compose import LoopOptions, build
+    from dsteleop.app.compose.options import RESET_AFTER_S
+    from dsteleop.app.compose.root import hand_mapping
     from dsteleop.app.loop import LoopConfig
     from dsteleop.app.loop.timing import raise_priority
     from dsteleop.app.viewer.server import Viewer, ViewerConfig

@@ -20,7 +20,7 @@ import sys
 from pathlib import Path
 
 from dsteleop.app.outpaths import output_dir
-from dsteleop.app.progress import Progress
+from dsteleop.app.tasks.progress import Progress
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from dsteleop.app.compose.options import LoopOptions, RobotSpec
 from dsteleop.app.loop import LoopConfig, LostPolicy
 from dsteleop.app.outpaths import check_output_file, output_dir, output_file
 from dsteleop.app.rrd.target import DEFAULT_ADDR, RerunTarget
@@ -47,7 +48,6 @@ from dsteleop.errors import ConfigError, InputError
 from dsteleop.tracking.sources import (
     ROTATIONS_DEG,
     SOURCE_GRAMMAR,
-    SourceSpec,
     VideoFileSource,
     check_rotation,
     parse_source,
@@ -135,21 +135,34 @@ def parse_params(items: list[str]) -> dict[str, Any]:
     return out
 
 
-def arbitration_config(args: argparse.Namespace) -> tuple[ArbitrationConfig, dict[str, Any]]:
-    """The arbitration config of --config and --param, and the loop fields of --config
-    (checked here, whether or not the command uses them)."""
-    return config_from_file(args.config, args.param)
+@dataclass(frozen=True)
+class Configuration:
+    """A configuration file with `--param` on top, parsed once (`configuration`).
+
+    Attributes:
+        arbitration: the arbitration configuration.
+        loop: the file's loop section over the defaults, with `arbitration`.
+        loop_fields: the loop fields the file set (a default it repeats counts as set).
+    """
+
+    arbitration: ArbitrationConfig
+    loop: LoopConfig
+    loop_fields: frozenset[str]
 
 
-def config_from_file(
-    path: Path | None, params: list[str], option: str = "--config"
-) -> tuple[ArbitrationConfig, dict[str, Any]]:
-    """The arbitration config of the file `path` (`read_config_file`; None: the defaults)
-    with the `--param` items `params` on top, and the file's loop fields (checked)."""
+def arbitration_config(args: argparse.Namespace) -> ArbitrationConfig:
+    """The arbitration config of --config and --param (the file's loop section checked
+    too, whether or not the command uses it)."""
+    return configuration(args.config, args.param).arbitration
+
+
+def configuration(path: Path | None, params: list[str], option: str = "--config") -> Configuration:
+    """The configuration of the file `path` (`read_config_file`; None: the defaults) with
+    the `--param` items `params` on top; `option` names the file's option in the errors."""
     arb, loop = read_config_file(path, option)
     try:
         cfg = ArbitrationConfig.from_dict({**arb, **parse_params(params)})
-        LoopConfig.from_dict({**loop, "arbitration": cfg.to_dict()})
+        loop_cfg = LoopConfig.from_dict(loop, arbitration=cfg)
     except TypeError as exc:
         where = "configuration" if option == "--config" else f"{option} {path}"
         raise ConfigError(f"{where}: {exc}") from None
@@ -157,7 +170,14 @@ def config_from_file(
         if option == "--config":
             raise
         raise ConfigError(f"{option} {path}: {exc}") from None
-    return cfg, loop
+    return Configuration(cfg, loop_cfg, frozenset(loop))
+
+
+def config_from_file(
+    path: Path | None, params: list[str], option: str = "--config"
+) -> ArbitrationConfig:
+    """The arbitration configuration of `configuration(path, params, option)`."""
+    return configuration(path, params, option).arbitration
 
 
 def add_video_options(parser: argparse.ArgumentParser) -> None:
@@ -331,108 +351,10 @@ def add_loop_options(
     add_config_options(parser)
 
 
-@dataclass(frozen=True)
-class LoopOptions:
-    """The loop options of `run` and `serve`, checked.
-
-    Attributes:
-        source: the hand source.
-        loop: the loop configuration (mode, rate, lost policy, arbitration, ...).
-        utensil: the utensil the person picks (the demo person's; told to the robot unless
-            `goal` is "infer"); "" before `resolve_goal`: spoon, or the told goal.
-        goal: what the robot is told: "infer" (nothing: it keeps a belief over the utensils,
-            `loop.inference`) or the utensil; "" before `resolve_goal`: the utensil.
-        change_mind: the demo person turns to this utensil this many seconds into each
-            trial (`DemoConfig.change_to`, `change_at_s`), or None.
-        robot: the robot (`--robot`): a shipped description's name or a description file.
-        seed: seed of the goal noise and the demo operator.
-        goal_noise_m: goal position noise [m] (None: the task's default).
-        record: the session folder (run) or root (serve), or None.
-        record_video: record the camera frames too.
-        record_lerobot: write the recorded episodes into a LeRobot dataset there, or None.
-        loop_video: play a video source again when it ends.
-        rotate: turn video or camera frames [deg clockwise] (None: a video's own rotation).
-        allow_partial: accept a video that ends before the frames it declares.
-        time_limit_s: a trial without an outcome after this long fails [s] (None: the
-            task's default, 120 s).
-        rerun: where a Rerun recording of the run goes, or None (docs/recordings.md).
-        history: the operator history file (`--history`), or None: an empty history, kept
-            nowhere.
-        input_delay_given: the input delay was chosen (`--input-delay`, or a `--config`
-            file's loop section), 0 included; otherwise the demo takes its world's delay.
-    """
-
-    source: SourceSpec
-    loop: LoopConfig
-    utensil: str = ""
-    goal: str = ""
-    change_mind: tuple[str, float] | None = None
-    robot: str = "iiwa"
-    seed: int = 0
-    goal_noise_m: float | None = None
-    record: Path | None = None
-    record_video: bool = False
-    record_lerobot: Path | None = None
-    loop_video: bool = False
-    rotate: int | None = None
-    allow_partial: bool = False
-    time_limit_s: float | None = None
-    rerun: RerunTarget | None = None
-    history: Path | None = None
-    input_delay_given: bool = False
-
-    def __post_init__(self) -> None:
-        goal, utensil = resolve_goal(self.goal or None, self.utensil or None)
-        object.__setattr__(self, "goal", goal)
-        object.__setattr__(self, "utensil", utensil)
-        if self.change_mind is not None:
-            check_change_mind(self.change_mind, self.source.kind, goal, utensil)
-
-    @property
-    def infer(self) -> bool:
-        """The robot is not told its utensil."""
-        return self.goal == "infer"
-
-    @classmethod
-    def of(cls, source: str = "demo", loop: LoopConfig | None = None, **kw: Any) -> LoopOptions:
-        """Options for code (benches, tests): a source in the `--source` grammar."""
-        return cls(parse_source(source), loop or LoopConfig(), **kw)
-
-
-def resolve_goal(goal: str | None, utensil: str | None) -> tuple[str, str]:
-    """(`--goal`, `--utensil`) as (what the robot is told: "infer" or a utensil, the person's
-    utensil): without `--goal` the robot is told the person's utensil (default spoon); a
-    told goal is the person's utensil too.
-
-    Raises:
-        ConfigError: an unknown utensil or candidate, or a told goal that is not the
-            person's utensil (one line).
-    """
-    from dsteleop.app.plants.kitchen import INFER
-    from dsteleop.robot.world import UTENSIL_NAMES
-
-    if utensil is not None and utensil not in UTENSIL_NAMES:
-        raise ConfigError(
-            f"--utensil: unknown utensil {utensil!r} (choose from {', '.join(UTENSIL_NAMES)})"
-        )
-    if goal is None:
-        return utensil or "spoon", utensil or "spoon"
-    if goal != INFER and goal not in UTENSIL_NAMES:
-        raise ConfigError(
-            f"--goal: unknown candidate {goal!r} (choose from {INFER}, {', '.join(UTENSIL_NAMES)})"
-        )
-    if goal != INFER and utensil is not None and utensil != goal:
-        raise ConfigError(
-            f"--utensil {utensil} with --goal {goal}: a robot told its goal seeks the person's "
-            f"utensil; leave --utensil out, or --goal {INFER} (the robot infers it)"
-        )
-    return goal, utensil or (goal if goal != INFER else "spoon")
-
-
 def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOptions:
     """The checked loop options (`reset_after_s`: the command's default for --reset-after)."""
     check_loop_bounds(args.rate, args.goal_noise, args.input_delay)  # the flags, named
-    arb, loop_file = arbitration_config(args)
+    config = configuration(args.config, args.param)
     flags: dict[str, Any] = {}
     if args.mode is not None:
         flags["mode"] = Mode.parse(args.mode)
@@ -444,13 +366,12 @@ def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOp
         flags["lost_policy"] = LostPolicy(args.lost_policy)
     if args.reset_after is not None:
         flags["reset_after_s"] = args.reset_after
-    elif "reset_after_s" not in loop_file:
+    elif "reset_after_s" not in config.loop_fields:
         flags["reset_after_s"] = reset_after_s
     limit = args.time_limit
     if limit is not None and not (math.isfinite(limit) and limit > 0):
         raise ConfigError(f"--time-limit must be > 0 seconds, got {limit}")
-    base = LoopConfig.from_dict({**loop_file, "arbitration": arb.to_dict()})
-    loop = base.replace(**flags)
+    loop = config.loop.replace(**flags)
     # Rate and delay as the loop will run (a --config file's loop section may set them too).
     check_loop_bounds(loop.rate_hz, args.goal_noise, loop.input_delay_s)
     if args.seed < 0:
@@ -462,7 +383,7 @@ def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOp
             "no pixels); record a webcam or a video source, or leave --record-video out"
         )
     history = check_history_path(args.history)
-    check_robot(args.robot)
+    robot = check_robot(args.robot)
     if args.record_lerobot is not None:
         from dsteleop.app.lerobot import check_out_dir
 
@@ -473,7 +394,7 @@ def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOp
         utensil=args.utensil or "",
         goal=args.goal or "",
         change_mind=parse_change_mind(args.change_mind),
-        robot=args.robot,
+        robot=robot,
         seed=args.seed,
         goal_noise_m=args.goal_noise,
         record=args.record,
@@ -491,12 +412,13 @@ def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOp
             else RerunTarget(args.rerun, args.rerun_connect)
         ),
         history=history,
-        input_delay_given=args.input_delay is not None or "input_delay_s" in loop_file,
+        input_delay_given=args.input_delay is not None or "input_delay_s" in config.loop_fields,
     )
 
 
 def parse_change_mind(text: str | None) -> tuple[str, float] | None:
-    """`--change-mind UTENSIL:S` as (utensil, seconds); None when not given.
+    """`--change-mind UTENSIL:S` as (utensil, seconds); None when not given (the rest is
+    checked with the other options, `compose.options.check_change_mind`).
 
     Raises:
         ConfigError: not UTENSIL:S with S a number (one line).
@@ -513,52 +435,13 @@ def parse_change_mind(text: str | None) -> tuple[str, float] | None:
     return name.strip(), seconds
 
 
-def check_change_mind(change: tuple[str, float], source: str, goal: str, utensil: str) -> None:
-    """A change of mind the demo person can make: the demo, a robot that infers its goal, a
-    known other utensil, a time > 0.
-
-    Raises:
-        ConfigError: one line saying which and why.
-    """
-    from dsteleop.app.plants.kitchen import INFER
-    from dsteleop.robot.world import UTENSIL_NAMES
-
-    name, at = change
-    if source != "demo":
-        raise ConfigError("--change-mind: only the demo person changes its mind (--source demo)")
-    if goal != INFER:
-        raise ConfigError(
-            f"--change-mind with a robot told the {goal}: it would work against the person; "
-            f"use --goal {INFER}"
-        )
-    if name not in UTENSIL_NAMES:
-        raise ConfigError(
-            f"--change-mind: unknown utensil {name!r} (choose from {', '.join(UTENSIL_NAMES)})"
-        )
-    if name == utensil:
-        raise ConfigError(f"--change-mind {name}: the person wants the {utensil} already")
-    if not at > 0:
-        raise ConfigError(f"--change-mind: the time must be > 0 seconds, got {at:g}")
-
-
-def check_robot(robot: str) -> None:
+def check_robot(robot: str) -> RobotSpec:
     """`--robot NAME|FILE` names a valid robot description (read and checked against its
     URDF now, before anything runs or records); `--robot zenoh:CONFIG` a valid link
-    configuration file and its robot's description.
-
-    Raises:
-        InputError: an unknown name, a missing or malformed file, a link or joint its URDF
-            does not have (one line).
-        ConfigError: a link configuration's field out of its domain.
+    configuration file and its robot's description: the robot, read once
+    (`RobotSpec.parse`, which raises the one-line errors).
     """
-    from dsteleop.app.link.config import link_config_path, read_link_config
-    from dsteleop.robot.description import load_description
-
-    link = link_config_path(robot)
-    if link is not None:
-        read_link_config(link).for_robot()
-    else:
-        load_description(robot)
+    return RobotSpec.parse(robot)
 
 
 def check_loop_bounds(

@@ -39,7 +39,7 @@ from typing import Any
 
 from dsteleop.app.cli.options import add_config_options, add_video_options, arbitration_config
 from dsteleop.app.outpaths import created_dir, output_dir, output_file
-from dsteleop.app.progress import Progress
+from dsteleop.app.tasks.progress import Progress
 from dsteleop.arbitration import ArbitrationConfig, Mode, registered
 from dsteleop.errors import ConfigError, InputError
 from dsteleop.tracking.sources import check_rotation
@@ -178,7 +178,7 @@ def command(args: argparse.Namespace) -> ReplayCommand:
         raise ConfigError(f"--workers must be >= 1, got {args.workers}")
     arb: ArbitrationConfig | None = None
     if args.config is not None or args.param:
-        arb, _ = arbitration_config(args)
+        arb = arbitration_config(args)
     rerun: Path | None = None
     if args.rerun is not None:
         from dsteleop.app.rrd.target import check_rrd_path

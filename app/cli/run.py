@@ -29,14 +29,9 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from dsteleop.app.cli.options import (
-    LoopOptions,
-    add_loop_options,
-    check_video_complete,
-    loop_options,
-)
+from dsteleop.app.cli.options import add_loop_options, check_video_complete, loop_options
 from dsteleop.app.cli.signals import StopOnSignal
-from dsteleop.app.link.config import link_config_path
+from dsteleop.app.compose.options import LoopOptions
 from dsteleop.errors import ConfigError, RobotLostError
 
 log = logging.getLogger(__name__)
@@ -99,7 +94,7 @@ def command(args: argparse.Namespace) -> RunCommand:
     if not (math.isfinite(args.robot_lost_s) and args.robot_lost_s > 0):
         raise ConfigError(f"--robot-lost-s must be > 0 seconds, got {args.robot_lost_s}")
     live = options.source.kind in ("webcam", "auto")
-    linked = link_config_path(options.robot) is not None
+    linked = options.robot.linked
     # A linked robot's physics keeps its own clock: the loop runs in real time.
     return RunCommand(
         options,
@@ -112,7 +107,7 @@ def command(args: argparse.Namespace) -> RunCommand:
 
 def run(args: argparse.Namespace) -> int:
     cmd = command(args)
-    from dsteleop.app.cli.compose import build
+    from dsteleop.app.compose.root import build
 
     opts = cmd.options
     log.info(

@@ -33,19 +33,12 @@ import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-from dsteleop.app.cli.options import (
-    LoopOptions,
-    add_loop_options,
-    check_video_complete,
-    loop_options,
-)
+from dsteleop.app.cli.options import add_loop_options, check_video_complete, loop_options
 from dsteleop.app.cli.signals import StopOnSignal
+from dsteleop.app.compose.options import RESET_AFTER_S, LoopOptions
 from dsteleop.errors import ConfigError
-
-if TYPE_CHECKING:
-    from dsteleop.tracking.mapping import MappingConfig
 
 log = logging.getLogger(__name__)
 
@@ -60,10 +53,6 @@ def default_record_root() -> Path:
     base = os.environ.get("XDG_DATA_HOME") or ""
     root = Path(base) if base and Path(base).is_absolute() else Path.home() / ".local" / "share"
     return root / "dsteleop" / "sessions"
-
-
-#: serve resets the task this long after each outcome [s] (`--reset-after`).
-RESET_AFTER_S = 4.0
 
 
 @dataclass(frozen=True)
@@ -105,14 +94,6 @@ def command(args: argparse.Namespace) -> ServeCommand:
     return ServeCommand(options, str(args.host), int(args.port))
 
 
-def hand_mapping(fields: dict[str, Any]) -> MappingConfig | None:
-    """The hand's workspace mapping from its fields (`HandInput.mapping_config`, the
-    dataclass's own fields); None for a source without one."""
-    from dsteleop.tracking.mapping import MappingConfig
-
-    return MappingConfig(**fields) if fields else None
-
-
 def run(args: argparse.Namespace) -> int:
     cmd = command(args)
     opts = cmd.options
@@ -120,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
         "serve: source %s, mode %s, host %s, port %d, record %s",
         opts.source, opts.loop.mode.value, cmd.host, cmd.port, opts.record,
     )  # fmt: skip
-    from dsteleop.app.cli.compose import build
+    from dsteleop.app.compose.root import build, hand_mapping
     from dsteleop.app.loop.timing import raise_priority
     from dsteleop.app.session.writer import new_session_folder
     from dsteleop.app.viewer.panel import source_label

@@ -29,7 +29,7 @@ from typing import Any
 from dsteleop.app.cli.options import add_config_options, arbitration_config, config_from_file
 from dsteleop.app.cli.world_options import add_world_arguments, world_overrides
 from dsteleop.app.outpaths import created_dir, output_dir
-from dsteleop.app.progress import Progress
+from dsteleop.app.tasks.progress import Progress
 from dsteleop.arbitration import Mode, registered
 from dsteleop.errors import ConfigError, InputError
 
@@ -167,13 +167,13 @@ def command(args: argparse.Namespace) -> SimCommand:
     from dsteleop.app.study.run import workers_for
 
     modes = (
-        all_modes()
+        all_modes(inference=args.world == "objects")
         if args.modes is None
         else tuple(Mode.parse(s.strip()) for s in str(args.modes).split(","))
     )
     if args.cell_configs is not None and args.config is not None:
         raise ConfigError("--config and --cell-configs are mutually exclusive")
-    arb, _ = arbitration_config(args)
+    arb = arbitration_config(args)
     if args.operator not in OPERATORS:
         raise ConfigError(
             f"unknown operator {args.operator!r} (choose from {', '.join(OPERATORS)})"
@@ -183,9 +183,9 @@ def command(args: argparse.Namespace) -> SimCommand:
     if args.sweep is not None:
         from dsteleop.app.study.sweep import parse_grid
 
-        sweep = parse_grid(args.sweep)
+        sweep = parse_grid(args.sweep, SimConfig(**extra))
         if args.address is not None:
-            from dsteleop.app.tune.cluster import parse_address
+            from dsteleop.app.tasks.cluster import parse_address
 
             parse_address(args.address)
     elif (
@@ -263,7 +263,7 @@ def read_cell_configs(
     out: dict[str, Any] = {}
     for name in names:
         path = folder / f"{name}.json"
-        arb, _ = config_from_file(path, params, "--cell-configs")
+        arb = config_from_file(path, params, "--cell-configs")
         try:
             digest = hashlib.sha256(path.read_bytes()).hexdigest()
         except OSError as exc:

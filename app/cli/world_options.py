@@ -15,9 +15,21 @@ from typing import Any
 
 from dsteleop.errors import ConfigError
 
-#: The worlds `--world` names: the default (one grasp, the robot's goal position noisy) and
-#: the disagreement world (two right grasps, docs/operator.md).
-WORLDS: tuple[str, ...] = ("wrong-goal", "disagreement")
+#: The worlds `--world` names: the default (one grasp, the robot's goal position noisy), the
+#: disagreement world (two right grasps) and the objects world (the robot infers which of K
+#: objects the person wants; docs/operator.md).
+WORLDS: tuple[str, ...] = ("wrong-goal", "disagreement", "objects")
+
+#: The objects world's options: option (its `args` name) -> field of `Objects`.
+OBJECT_OPTIONS: dict[str, str] = {
+    "objects": "count",
+    "object_spacing": "spacing_m",
+    "perception_depth": "perception_depth_m",
+    "perception_lateral": "perception_lateral_m",
+    "perception_heading": "perception_heading_rad",
+    "change_share": "change_share",
+    "change_at": "change_at_s",
+}
 
 
 def add_world_arguments(parser: argparse.ArgumentParser) -> None:
@@ -25,9 +37,11 @@ def add_world_arguments(parser: argparse.ArgumentParser) -> None:
     a(
         "--world",
         default=None,
-        help="wrong-goal (default: one grasp, the robot's goal position noisy) or disagreement "
+        help="wrong-goal (default: one grasp, the robot's goal position noisy), disagreement "
         "(two right grasps, top and side; the robot goes to one, each person prefers one; "
-        "goal noise 0 unless --goal-sigma; docs/operator.md)",
+        "goal noise 0 unless --goal-sigma) or objects (K objects, the person wants one and may "
+        "change its mind, the robot infers which and perceives them with its own error; goal "
+        "noise 0 unless --goal-sigma; docs/operator.md)",
     )
     a(
         "--robot-grasp",
@@ -55,6 +69,54 @@ def add_world_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="RAD",
         help="disagreement world: the side grasp's heading from the top grasp's (default pi/2)",
+    )
+    a(
+        "--objects",
+        type=int,
+        default=None,
+        metavar="K",
+        help="objects world: the number of objects, 1-9 (default 3)",
+    )
+    a(
+        "--object-spacing",
+        type=float,
+        default=None,
+        metavar="M",
+        help="objects world: the distance between neighbouring objects [m] (default 0.08)",
+    )
+    a(
+        "--perception-depth",
+        type=float,
+        default=None,
+        metavar="M",
+        help="objects world: the robot's perception error along its camera's view [m] (0.02)",
+    )
+    a(
+        "--perception-lateral",
+        type=float,
+        default=None,
+        metavar="M",
+        help="objects world: the robot's perception error across its camera's view [m] (0.005)",
+    )
+    a(
+        "--perception-heading",
+        type=float,
+        default=None,
+        metavar="RAD",
+        help="objects world: the robot's perception error of each object's heading (0.05)",
+    )
+    a(
+        "--change-share",
+        type=float,
+        default=None,
+        metavar="P",
+        help="objects world: the share of runs in which the person changes its mind (0.2)",
+    )
+    a(
+        "--change-at",
+        default=None,
+        metavar="LO,HI",
+        help="objects world: the time of a change of mind is drawn from U(LO, HI) [s] (1.5,3)",
     )
     a(
         "--goal-sigma",
@@ -105,6 +167,7 @@ def world_overrides(args: argparse.Namespace) -> dict[str, Any]:
     """The `SimConfig` fields the world options set (ConfigError on a bad value)."""
     from dsteleop.app.operator.world import Impairments
     from dsteleop.app.study.grasps import Grasps
+    from dsteleop.app.study.objects import Objects
 
     extra: dict[str, Any] = {}
     world: dict[str, float] = {}
@@ -127,6 +190,15 @@ def world_overrides(args: argparse.Namespace) -> dict[str, Any]:
         option = "--" + sorted(given)[0].replace("_rad", "").replace("_", "-")
         option = option.replace("separation", "grasp-separation")
         raise ConfigError(f"{option} goes with --world disagreement")
+    options = [a for a in OBJECT_OPTIONS if getattr(args, a, None) is not None]
+    objects = {OBJECT_OPTIONS[a]: getattr(args, a) for a in options}
+    if kind == "objects":
+        if "change_at_s" in objects:
+            objects["change_at_s"] = _interval(str(objects["change_at_s"]), "--change-at")
+        extra["objects"] = Objects(**objects)
+        world["goal_sigma_m"] = 0.0  # the robot's known error is its perception's
+    elif options:
+        raise ConfigError(f"--{options[0].replace('_', '-')} goes with --world objects")
     for arg, name in (
         ("goal_sigma", "goal_sigma_m"),
         ("delay", "delay_s"),

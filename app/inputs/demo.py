@@ -51,7 +51,7 @@ The person works in the operator's world (`DemoConfig.world`, `Impairments`, doc
 it perceives the robot through the demo's one virtual camera (its viewing axis is the base's
 x axis: depth misjudged more than lateral position) and through the link's image delay; the
 command delay is the loop's `input_delay_s` and the goal noise the task's (both set from the
-same world by `app/cli/compose.py`), so each impairment is one mechanism.
+same world by `app/compose/root.py`), so each impairment is one mechanism.
 
 The hand reaches the tracking pipeline as landmarks of the kinematic hand model
 (`tracking.synthetic.SyntheticSource`) in a virtual camera: the operator's robot-frame pose is

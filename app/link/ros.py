@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dsteleop.arbitration.se3 import matrix_from_quat_wxyz, quat_wxyz_from_matrix
-from dsteleop.errors import InputError
+from dsteleop.errors import ContractError, InputError
 
 Array = NDArray[np.float64]
 
@@ -203,9 +203,11 @@ def liveliness_key(
         qos: the entity's QoS (with `topic`).
     """
     if kind not in (NODE, PUBLISHER, SUBSCRIPTION):
-        raise ValueError(f"liveliness_key: unknown entity kind {kind!r}")
+        raise ContractError(f"liveliness_key: unknown entity kind {kind!r}")
     if (kind == NODE) != (topic is None) or (topic is None) != (ros_type is None):
-        raise ValueError("liveliness_key: a node has no topic; a publisher or subscription has one")
+        raise ContractError(
+            "liveliness_key: a node has no topic; a publisher or subscription has one"
+        )
     chunks = [
         LIVELINESS_PREFIX,
         str(domain_id),

@@ -85,17 +85,21 @@ class LoopConfig:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> LoopConfig:
-        """The config a session recorded (missing fields take their defaults).
+    def from_dict(
+        cls, d: dict[str, Any], arbitration: ArbitrationConfig | None = None
+    ) -> LoopConfig:
+        """The config a session recorded (missing fields take their defaults); with
+        `arbitration` (already parsed), `d` holds the loop's own fields only.
 
         Sessions of schema 1 kept eq (2)'s reference bound (`max_lead_m`, `max_lead_rad`)
-        here; it now belongs to the arbitration and is moved there.
+        here; it now belongs to the arbitration and is moved there (a parsed `arbitration`
+        keeps its own).
 
         Raises:
             ConfigError: an unknown field or a value out of its domain.
         """
         d = dict(d)
-        arb = dict(d.pop("arbitration", {}))
+        arb = dict(d.pop("arbitration", {})) if arbitration is None else {}
         for moved in ("max_lead_m", "max_lead_rad"):
             if moved in d:
                 arb.setdefault(moved, d.pop(moved))
@@ -110,4 +114,6 @@ class LoopConfig:
                 d["lost_policy"] = LostPolicy(d["lost_policy"])
             except ValueError:
                 raise ConfigError(f"unknown lost_policy {d['lost_policy']!r}") from None
-        return cls(**d, arbitration=ArbitrationConfig.from_dict(arb))
+        if arbitration is None:
+            arbitration = ArbitrationConfig.from_dict(arb)
+        return cls(**d, arbitration=arbitration)

@@ -9,8 +9,13 @@ utensils in the pick phase, the bin in the place phase; docs/METHOD.md §10):
                           (a candidate's fingers closed): the same belief over the new model
     update                with a fresh hand this tick and the one before (X_human and
                           X_human_prev, as eq (6) reads them): Bayes' rule and the floor,
-                          `arbitration.belief.GoalBelief.update`, over the palm's pose (the
-                          6 pose dimensions, below); otherwise held (a lost, stalled or
+                          `arbitration.belief.GoalBelief.update`, of the hand's step read at
+                          the robot's state (x = X_current, x' = `belief.commanded(X_current,
+                          X_human, X_human_prev)`: the robot moved by the hand's step, as the
+                          study reads it, docs/METHOD.md §10: under assistance the mapped
+                          hand drifts from the robot, and its distance to the candidates no
+                          longer says where the person wants the robot), over the palm's pose
+                          (the 6 pose dimensions, below); otherwise held (a lost, stalled or
                           returning hand is no evidence)
     read                  the MAP candidate's pose is the robot's X_goal; the confidence per
                           dimension (all 6 + F) and joint go to `ArbitrationInput.confidence`
@@ -20,9 +25,9 @@ Evidence from the pose alone. Every candidate asks the same of the fingers (open
 at the object: the task's schedule), so the fingers say nothing about which object the person
 wants; and a hand that closes is far from every open candidate's finger goal at once, which
 adds the same large term under the root of every candidate's cost-to-go (`belief` docstring)
-and shrinks the differences between them: since the log-odds telescope to where the hand is
-now, a closing hand would wash out the evidence of where it went (measured in the demo's
-manual runs before this: the MAP ended on the grasped utensil in 7 of 18). So the belief is
+and shrinks the differences between them (read at the hand itself, whose log-odds telescope
+to where it is now, a closing hand washed out the evidence of where it went: in the demo's
+manual runs the MAP then ended on the grasped utensil in 7 of 18). So the belief is
 updated from the pose dimensions of the candidates and of the hand (`GoalBelief` over F = 0
 fingers), and the confidence is read over all 6 + F dimensions from the same belief (the
 candidates' finger goals included: a candidate whose fingers closed, because the palm came
@@ -42,7 +47,7 @@ from numpy.typing import NDArray
 
 from dsteleop.app.session.schema import BeliefRecord
 from dsteleop.arbitration import HandState
-from dsteleop.arbitration.belief import BeliefParams, GoalBelief
+from dsteleop.arbitration.belief import BeliefParams, GoalBelief, commanded
 from dsteleop.robot.task import Candidates
 
 Array = NDArray[np.float64]
@@ -101,11 +106,13 @@ class GoalInference:
         self,
         candidates: Candidates,
         params: BeliefParams,
+        X_robot: HandState,
         X_human: HandState | None,
         X_human_prev: HandState | None,
     ) -> Inferred:
-        """One tick (module docstring): `X_human` the fresh hand of this tick (None: none),
-        `X_human_prev` the one of the tick before (None: none; no evidence this tick)."""
+        """One tick (module docstring): `X_robot` the robot's state the tick starts from,
+        `X_human` the fresh hand of this tick (None: none), `X_human_prev` the one of the tick
+        before (None: none; no evidence this tick)."""
         model, pose_model = self._model, self._pose_model
         if (
             model is None
@@ -126,8 +133,9 @@ class GoalInference:
             self._model, self._pose_model, self._candidates = model, pose_model, candidates
         assert self._belief is not None
         if X_human is not None and X_human_prev is not None:
-            now, before = _pose(_one(X_human)), _pose(_one(X_human_prev))
-            self._belief = pose_model.update(self._belief, now, before)
+            x = _one(X_robot)
+            x_next = commanded(x, _one(X_human), _one(X_human_prev))
+            self._belief = pose_model.update(self._belief, _pose(x_next), _pose(x))
             self.updates += 1
         conf = model.confidence(self._belief)
         m = int(conf.map_index[0])

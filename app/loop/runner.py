@@ -18,7 +18,7 @@ functions of `tick.py`. One tick:
     record    -> one TickRecord to every observer (and to the recorder, when recording)
 
 Everything a loop talks to is given to its constructor (the composition root is
-`app/cli/compose.py`): the hand, the robot, the task, the clock, the observers, where the operator
+`app/compose/`): the hand, the robot, the task, the clock, the observers, where the operator
 history persists, the camera-frame recorder and where "Start recording" writes.
 """
 
@@ -401,7 +401,7 @@ class TeleopLoop:
             X_h = inp.X_human if fresh and inp is not None else None
             X_h_prev = None if self.state.lost else self.state.X_human_prev
             inferred = self.inference.step(
-                candidates, self.config.arbitration.belief, X_h, X_h_prev
+                candidates, self.config.arbitration.belief, self.state.X_current, X_h, X_h_prev
             )
             goal = inferred.goal
         goal_ms = (time.perf_counter() - t_goal) * 1e3

@@ -64,6 +64,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dsteleop.app.ports import Clock, InputArrivals
+from dsteleop.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
@@ -229,10 +230,10 @@ class RateClock:
         follow_late: float = FOLLOW_LATE,
     ) -> None:
         if not rate_hz > 0:
-            raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
+            raise ConfigError(f"rate_hz must be > 0, got {rate_hz}")
         for name, v in (("follow_early", follow_early), ("follow_late", follow_late)):
             if not 0 <= v < 0.5:
-                raise ValueError(f"{name} must be in [0, 0.5) periods, got {v}")
+                raise ConfigError(f"{name} must be in [0, 0.5) periods, got {v}")
         self.period_s = 1.0 / rate_hz
         self.early_s = follow_early * self.period_s
         self.late_s = follow_late * self.period_s

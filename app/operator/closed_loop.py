@@ -66,6 +66,7 @@ from numpy.typing import NDArray
 
 from dsteleop.app.operator.world import Impairments
 from dsteleop.arbitration.se3 import FING, ROT, TRANS, HandState, diff, integrate, so3_exp
+from dsteleop.errors import ConfigError, ContractError
 
 Array = NDArray[np.float64]
 Interval = tuple[float, float]
@@ -121,21 +122,21 @@ class OperatorProfile:
         for name in ("delay_s", "decision_s", "pause_s"):
             lo, hi = getattr(self, name)
             if not (math.isfinite(lo) and math.isfinite(hi) and 0 <= lo <= hi):
-                raise ValueError(f"{name} must be an interval 0 <= lo <= hi, got {(lo, hi)!r}")
+                raise ConfigError(f"{name} must be an interval 0 <= lo <= hi, got {(lo, hi)!r}")
         for name in (
             "angle_noise_rad", "openness_noise", "fitts_a_s", "fitts_b_s",
             "min_move_s", "endpoint_noise", "hold_s",
         ):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
-                raise ValueError(f"{name} must be finite and >= 0, got {v!r}")
+                raise ConfigError(f"{name} must be finite and >= 0, got {v!r}")
         for name in (
             "v_cap_mps", "w_cap_radps", "g_cap_per_s", "patience_s", "detect_k",
         ):  # fmt: skip
             if not getattr(self, name) > 0:
-                raise ValueError(f"{name} must be > 0")
+                raise ConfigError(f"{name} must be > 0")
         if not (0 < self.resisted_below < 1 and 1 <= self.push_gain_step <= self.push_gain_max):
-            raise ValueError("resisted_below in (0, 1) and 1 <= push_gain_step <= push_gain_max")
+            raise ConfigError("resisted_below in (0, 1) and 1 <= push_gain_step <= push_gain_max")
 
     def for_robot(
         self, v_max_mps: float, w_max_radps: float, g_max_per_s: float, share: float = 0.95
@@ -143,7 +144,7 @@ class OperatorProfile:
         """The same person with speed caps at `share` of a robot's limits (95 %: just under
         them; lower where the input adds jitter to the hand's speed, as a camera does)."""
         if not 0 < share <= 1:
-            raise ValueError(f"share must be in (0, 1], got {share!r}")
+            raise ConfigError(f"share must be in (0, 1], got {share!r}")
         return replace(
             self, v_cap_mps=share * v_max_mps, w_cap_radps=share * w_max_radps,
             g_cap_per_s=share * g_max_per_s,
@@ -189,15 +190,15 @@ class Intention:
 
     def __post_init__(self) -> None:
         if (self.settle_targets is None) != (self.settle_tolerance is None):
-            raise ValueError("settle_targets and settle_tolerance go together")
+            raise ConfigError("settle_targets and settle_tolerance go together")
         if self.settle_after is not None and (self.settle_after < 1).any():
-            raise ValueError("settle_after counts pauses from 1")
+            raise ConfigError("settle_after counts pauses from 1")
         if (self.change_at_s is None) != (self.change_targets is None):
-            raise ValueError("change_at_s and change_targets go together")
+            raise ConfigError("change_at_s and change_targets go together")
         if (self.change_settle is not None) and (
             self.change_at_s is None or self.settle_targets is None
         ):
-            raise ValueError("change_settle needs change_at_s and settle_targets")
+            raise ConfigError("change_settle needs change_at_s and settle_targets")
 
     def take(self, keep: NDArray[np.bool_]) -> Intention:
         st, tol = self.settle_targets, self.settle_tolerance
@@ -298,7 +299,7 @@ class ClosedLoopOperator:
     def __post_init__(self) -> None:
         N = self.start.position.shape[0]
         if len(self.rngs) != N:
-            raise ValueError(f"{len(self.rngs)} generators for {N} operators")
+            raise ContractError(f"{len(self.rngs)} generators for {N} operators")
         pr = self.profile
         delay = np.array([_pick(pr.delay_s, g) for g in self.rngs])
         decision = np.array([_pick(pr.decision_s, g) for g in self.rngs])
@@ -687,7 +688,7 @@ class _Seen:
     def add(self, t_s: float, X: HandState) -> None:
         C = self.times.shape[0]
         if self.count and t_s < self.times[(self.count - 1) % C]:
-            raise ValueError("observations must come in time order")
+            raise ContractError("observations must come in time order")
         k = self.count % C
         self.times[k] = t_s
         self.pos[k], self.rot[k], self.opn[k] = X.position, X.rotation, X.openness

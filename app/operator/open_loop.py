@@ -42,6 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dsteleop.arbitration.se3 import HandState, so3_exp, so3_log
+from dsteleop.errors import ConfigError, ContractError
 
 Array = NDArray[np.float64]
 Interval = tuple[float, float]
@@ -110,29 +111,29 @@ class OperatorStrategy:
         ):  # fmt: skip
             lo, hi = getattr(self, name)
             if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo <= hi):
-                raise ValueError(f"{name} must be an interval 0 <= lo <= hi, got {(lo, hi)!r}")
+                raise ConfigError(f"{name} must be an interval 0 <= lo <= hi, got {(lo, hi)!r}")
         for name in ("lead_end", "overlap", "rotation_onset", "rotation_end", "finger_onset"):
             if getattr(self, name)[1] > 1.0:
-                raise ValueError(f"{name} is a phase and must lie in [0, 1]")
+                raise ConfigError(f"{name} is a phase and must lie in [0, 1]")
         if self.speed_mps[0] <= 0 or self.rot_speed_radps[0] <= 0:
-            raise ValueError("speed_mps and rot_speed_radps must be > 0")
+            raise ConfigError("speed_mps and rot_speed_radps must be > 0")
         if self.rotation_onset[1] >= self.rotation_end[0]:
-            raise ValueError("rotation_onset must end before rotation_end starts")
+            raise ConfigError("rotation_onset must end before rotation_end starts")
         if not 0.0 <= self.lead_probability <= 1.0:
-            raise ValueError("lead_probability must lie in [0, 1]")
+            raise ConfigError("lead_probability must lie in [0, 1]")
         if any(a not in (0, 1, 2) for a in self.lead_axes):
-            raise ValueError("lead_axes are translational axes 0, 1, 2")
+            raise ConfigError("lead_axes are translational axes 0, 1, 2")
         if len(self.noise_dims) != 6:
-            raise ValueError("noise_dims needs six flags (x, y, z, roll, pitch, yaw)")
+            raise ConfigError("noise_dims needs six flags (x, y, z, roll, pitch, yaw)")
         for name in (
             "min_move_s", "speed_variability", "pause_rate", "wander_m", "wander_rad",
             "endpoint_sd_m", "endpoint_sd_rad",
         ):  # fmt: skip
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
-                raise ValueError(f"{name} must be finite and >= 0, got {v!r}")
+                raise ConfigError(f"{name} must be finite and >= 0, got {v!r}")
         if not (self.v_cap_mps > 0 and self.w_cap_radps > 0):
-            raise ValueError("v_cap_mps and w_cap_radps must be > 0")
+            raise ConfigError("v_cap_mps and w_cap_radps must be > 0")
 
 
 @dataclass(frozen=True)
@@ -202,11 +203,11 @@ def sample_trajectory(
         The trajectory; it starts exactly at `start` and ends holding still at the target.
     """
     if not (np.isfinite(dt) and dt > 0):
-        raise ValueError(f"dt must be > 0, got {dt!r}")
+        raise ContractError(f"dt must be > 0, got {dt!r}")
     if start.position.shape != (3,) or goal.position.shape != (3,):
-        raise ValueError("start and goal must be single (unbatched) states")
+        raise ContractError("start and goal must be single (unbatched) states")
     if start.n_fingers != goal.n_fingers:
-        raise ValueError("start and goal have different finger counts")
+        raise ContractError("start and goal have different finger counts")
     st = strategy or OperatorStrategy()
     gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
     mask = np.asarray(st.noise_dims, dtype=np.float64)
@@ -303,7 +304,7 @@ def stack(trajectories: Sequence[OperatorTrajectory]) -> tuple[HandState, NDArra
         is the longest length, and the lengths (N,).
     """
     if not trajectories:
-        raise ValueError("no trajectories to stack")
+        raise ContractError("no trajectories to stack")
     lengths = np.array([len(tr) for tr in trajectories], dtype=np.int64)
     T = int(lengths.max())
 

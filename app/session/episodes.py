@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from dsteleop.app.session.schema import TickRecord, decode_outcome, encode_event, encode_outcome
+from dsteleop.errors import FormatError
 from dsteleop.robot.task import Outcome
 
 End = Literal["outcome", "reset", "stopped", "incomplete"]
@@ -93,11 +94,11 @@ class Episode:
         """An episode of a session's metadata.
 
         Raises:
-            KeyError, ValueError, TypeError: a malformed entry (the reader names the file).
+            KeyError, FormatError, TypeError: a malformed entry (the reader names the file).
         """
         end = str(d["end"])
         if end not in ENDS:
-            raise ValueError(f"unknown episode end {end!r}")
+            raise FormatError(f"unknown episode end {end!r}")
         return cls(
             index=int(d["index"]),
             first=int(d["first_tick"]),

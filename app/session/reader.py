@@ -16,7 +16,7 @@ from dsteleop.app.session.schema import READABLE, SCHEMA, TickRecord, decode
 from dsteleop.app.session.video import FRAMES, VIDEO
 from dsteleop.app.session.writer import META, TICKS
 from dsteleop.arbitration import Mode, OperatorHistory
-from dsteleop.errors import InputError
+from dsteleop.errors import FormatError, InputError
 from dsteleop.robot.description import DEFAULT_ROBOT
 
 log = logging.getLogger(__name__)
@@ -180,7 +180,7 @@ def read_session(folder: Path, warn_truncated: bool = True) -> Session:
         try:
             raw = json.loads(line)
             if not isinstance(raw, dict):
-                raise ValueError("not an object")
+                raise FormatError("not an object")
         except ValueError as exc:
             if last:
                 if warn_truncated:

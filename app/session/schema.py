@@ -37,7 +37,7 @@ from numpy.typing import NDArray
 
 from dsteleop.app.ports import HumanInput, PlantStep
 from dsteleop.arbitration import STEP_ARRAYS, ArbitrationStep, HandState, Mode
-from dsteleop.errors import InputError
+from dsteleop.errors import FormatError, InputError
 from dsteleop.robot.task import EventKind, Outcome, Phase, TaskEvent
 from dsteleop.tracking.types import HandSample
 
@@ -192,7 +192,7 @@ def unpack(v: list[float] | None) -> HandState | None:
         return None
     a = np.asarray(v, dtype=np.float64)
     if a.ndim != 1 or a.size < 12:
-        raise ValueError(f"a state needs at least 12 numbers, got {a.size}")
+        raise FormatError(f"a state needs at least 12 numbers, got {a.size}")
     return HandState(a[0:3], a[3:12].reshape(3, 3), a[12:])
 
 
@@ -207,7 +207,7 @@ def unpack_joints(v: list[float | None] | None) -> Array | None:
         return None
     a = np.asarray(v, dtype=np.float64)
     if a.ndim != 1:
-        raise ValueError(f"joint positions must be a flat list, got shape {a.shape}")
+        raise FormatError(f"joint positions must be a flat list, got shape {a.shape}")
     return a
 
 

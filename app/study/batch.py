@@ -25,6 +25,7 @@ from dsteleop.app.operator.closed_loop import ClosedLoopOperator
 from dsteleop.app.operator.open_loop import stack
 from dsteleop.app.operator.world import CommandDelay
 from dsteleop.app.session.trace import Trace
+from dsteleop.app.study.inference import ObjectRows, ObjectRuns, RowBeliefs, draw_runs, map_stats
 from dsteleop.app.study.planar import (
     Array,
     SimConfig,
@@ -55,6 +56,7 @@ from dsteleop.arbitration import (
 )
 from dsteleop.arbitration.history import history_terms
 from dsteleop.arbitration.se3 import stack as stack_states
+from dsteleop.errors import ContractError
 from dsteleop.robot.task import Phase
 
 
@@ -114,17 +116,26 @@ def _history(cfg: SimConfig, terminals: Array) -> Array:
 
 def _hands_for(
     cfg: SimConfig, idx: NDArray[np.int64], copies: int, attempt: int = 0
-) -> tuple[Array, NDArray[np.bool_], _Hands]:
-    """The robot goals (N, 3), lead flags (N,) and the hands of `copies` x N rows (one block
-    of N per mode) of trajectories `idx`, in run `attempt`."""
+) -> tuple[Array | ObjectRuns, NDArray[np.bool_], _Hands]:
+    """The robot goals (N, 3) (in the objects world the run's objects, `ObjectRuns`: the
+    robot infers its goal among them), lead flags (N,) and the hands of `copies` x N rows
+    (one block of N per mode) of trajectories `idx`, in run `attempt`."""
     if cfg.closed_loop:
         closed = [sample_closed_trial(cfg, int(i)) for i in idx]
-        goals = np.stack([robot_goal(cfg, int(i), attempt) for i in idx])
+        goals: Array | ObjectRuns
+        if cfg.objects is None:
+            goals = np.stack([robot_goal(cfg, int(i), attempt) for i in idx])
+            runs = None
+        else:
+            goals = runs = draw_runs(
+                cfg.objects, cfg.seed, idx, attempt, cfg.handle_xy_m, cfg.handle_normal_rad,
+                cfg.world.view_axis, cfg.world.goal_sigma_m,
+            )  # fmt: skip
         lead = np.array([t.lead for t in closed], dtype=bool)
         delay = round(cfg.world.delay_s / cfg.dt_s)
         settle = delay + round(cfg.grasp_s / cfg.dt_s)
         T = round(cfg.max_trial_s / cfg.dt_s) + 1 + settle
-        op = closed_operator(cfg, closed * copies, attempt)
+        op = closed_operator(cfg, closed * copies, attempt, runs)
         return goals, lead, _ClosedHands(op, T, delay, settle)
     trials = [sample_trial(cfg, int(i)) for i in idx]
     stacked, lengths = stack([t.operator for t in trials])
@@ -154,9 +165,14 @@ class Example:
 def example(cfg: SimConfig, index: int, mode: Mode) -> Example:
     """Run trajectory `index` under `mode` alone and keep every tick."""
     goals, _, source = _hands_for(cfg, np.array([index]), 1)
-    goal = goals[0]
     steps: list[ArbitrationStep] = []
-    robot, L_all, hand = _simulate(cfg, (mode,), source, goals, record=steps)
+    if isinstance(goals, ObjectRuns):  # the goal drawn: the object the person wants
+        goal = np.array([*goals.true_xy[goals.wanted[0]], goals.normal])
+        beliefs = _row_beliefs(cfg, goals, 1, source.T)
+        robot, L_all, hand = _simulate(cfg, (mode,), source, beliefs, record=steps)
+    else:
+        goal = goals[0]
+        robot, L_all, hand = _simulate(cfg, (mode,), source, goals, record=steps)
     L = int(L_all[0])
     first = steps[: L - 1]
     step = ArbitrationStep(
@@ -196,6 +212,7 @@ class _Hands:
     gave_up: NDArray[np.bool_]  # (C N,) the operator gave up (closed loop)
     committed: NDArray[np.bool_]  # (C N,) the operator committed (open loop: all)
     settled: NDArray[np.bool_]  # (C N,) the operator settled (closed loop)
+    changed: NDArray[np.bool_]  # (C N,) the operator changed its mind (closed loop)
 
     def start(self) -> HandState:
         raise NotImplementedError
@@ -226,6 +243,7 @@ class _OpenHands(_Hands):
         self.gave_up = np.zeros(copies * N, dtype=bool)
         self.committed = np.ones(copies * N, dtype=bool)
         self.settled = np.zeros(copies * N, dtype=bool)
+        self.changed = np.zeros(copies * N, dtype=bool)
         self.T = int(hands_tm.position.shape[0])
         self.cols = np.tile(np.arange(N), copies)  # the trajectory of each current row
 
@@ -258,6 +276,7 @@ class _ClosedHands(_Hands):
         self.gave_up = np.zeros(N, dtype=bool)  # by original row (the operator compacts)
         self.committed = np.zeros(N, dtype=bool)
         self.settled = np.zeros(N, dtype=bool)
+        self.changed = np.zeros(N, dtype=bool)
         self.line = CommandDelay(op.start, delay)
         self.prev = op.start
 
@@ -282,6 +301,7 @@ class _ClosedHands(_Hands):
         self.gave_up[ended] = self.op.gave_up[newly]
         self.committed[ended] = committed
         self.settled[ended] = self.op.settled[newly]
+        self.changed[ended] = self.op.changed[newly]
 
     def keep(self, keep: NDArray[np.bool_], k: int) -> None:
         self.op.select(keep)
@@ -339,7 +359,7 @@ class _Tape:
     def start(self, T: int, J: int) -> _Tape:
         """Ready for a run of the same shape."""
         if (T, J) != self.shape:
-            raise ValueError(f"a tape of {self.shape} for a run of {(T, J)}")
+            raise ContractError(f"a tape of {self.shape} for a run of {(T, J)}")
         self._from = self._ticks = 0
         return self
 
@@ -382,7 +402,7 @@ def _simulate(
     cfg: SimConfig,
     modes: Sequence[Mode],
     hands: _Hands,
-    goals: Array,
+    goals: Array | RowBeliefs,
     record: list[ArbitrationStep] | None = None,
     on_progress: Callable[[int], None] | None = None,
     history: Array | None = None,
@@ -399,11 +419,15 @@ def _simulate(
     tick go on `tape` (a fresh one when None; the returned poses are views of it);
     on_progress is called with counts of trials that ended; `record` (one mode only) gets
     every step; `history` (C N, 6) is eq (6)'s history term of each row (None: no previous
-    runs).
+    runs). `goals` are the robot's goals (N, 3), or (the objects world) the rows' beliefs,
+    updated each tick from the hand the robot receives, which give each row's goal and the
+    confidence in it.
     """
-    C, N = len(modes), goals.shape[0]
+    beliefs = goals if isinstance(goals, RowBeliefs) else None
+    C = len(modes)
+    N = goals.ids.size // C if isinstance(goals, RowBeliefs) else goals.shape[0]
     if record is not None and C != 1:
-        raise ValueError("record needs a single mode")
+        raise ContractError("record needs a single mode")
     T, J = hands.T, C * N
     # One arbiter steps every mode's rows at once (a mixed batch: row j is in mode j // N).
     arb = make_arbiter(modes[0], cfg.arbitration)
@@ -412,8 +436,13 @@ def _simulate(
     X0 = planar_state(
         np.full(J, cfg.start_xy_m[0]), np.full(J, cfg.start_xy_m[1]), np.full(J, cfg.start_heading)
     )
-    g = np.tile(goals, (C, 1))
-    G = planar_state(g[:, 0], g[:, 1], g[:, 2])
+    if isinstance(goals, RowBeliefs):
+        G = goals.goal()
+    else:
+        g = np.tile(goals, (C, 1))
+        G = planar_state(g[:, 0], g[:, 1], g[:, 2])
+    confidence: Array | None = None
+    confidence_joint: Array | None = None
     rows = np.arange(J)
     hist = history
     X, Xp, X0r = X0, X0, X0
@@ -441,12 +470,19 @@ def _simulate(
                 X, Xp, X0r, H0, G = (h.take(keep) for h in (X, Xp, X0r, H0, G))
                 hist = None if hist is None else hist[keep]
                 hands.keep(keep, k)
+                if beliefs is not None:
+                    beliefs.keep(keep)
         t_next = (k + 1) * cfg.dt_s
         H, Hp = hands.next(k, t_next)
         hands.ended(rows, k)
+        if beliefs is not None:  # the belief from the hand's step, at the robot: its goal
+            beliefs.update(k, X, H, Hp)
+            G = beliefs.goal()
+            confidence, confidence_joint = beliefs.confidence.per_dim, beliefs.confidence.joint
         inp = ArbitrationInput(
             X_human=H, X_human_prev=Hp, X_human_start=H0, X_current=X, X_prev=Xp, X_start=X0r,
-            X_goal=G, dt=cfg.dt_s, history_term=hist,
+            X_goal=G, dt=cfg.dt_s, history_term=hist, confidence=confidence,
+            confidence_joint=confidence_joint,
         )  # fmt: skip
         # The study reads the actions and states only: eq (4)-(7) just where a mode's rule
         # reads them (every quantity when every step is recorded).
@@ -487,7 +523,7 @@ def _run_modes(
     cfg: SimConfig,
     modes: Sequence[Mode],
     hands: _Hands,
-    goals: Array,
+    goals: Array | ObjectRuns,
     ranges: Array,
     n_paths: int,
     on_progress: Callable[[int], None] | None = None,
@@ -500,12 +536,24 @@ def _run_modes(
     (C N, 6) per row, None for none). Every action of every trial is recorded, time-major;
     the metrics are computed afterwards over whole arrays with dsteleop.arbitration.metrics
     (the results hold no view of the tape)."""
-    N = goals.shape[0]
-    J = len(modes) * N
+    C = len(modes)
+    runs, beliefs = None, None
+    source: Array | RowBeliefs
+    if isinstance(goals, ObjectRuns):
+        runs, N = goals, goals.wanted.size
+        source = beliefs = _row_beliefs(cfg, goals, C, hands.T)
+    else:
+        source, N = goals, goals.shape[0]
+    J = C * N
     tape = _Tape(hands.T, J) if tape is None else tape
     poses, lengths, hand = _simulate(
-        cfg, modes, hands, goals, on_progress=on_progress, history=history, tape=tape
+        cfg, modes, hands, source, on_progress=on_progress, history=history, tape=tape
     )
+    objects: ObjectRows | None = None
+    if runs is not None and beliefs is not None:
+        wanted = np.where(hands.changed, np.tile(runs.final, C), np.tile(runs.wanted, C))
+        stats = map_stats(beliefs.map_record, lengths, wanted, cfg.dt_s)
+        objects = ObjectRows(runs.true_xy, wanted, hands.changed, stats)
     U_h_all, U_out_all, acted = tape.U_human, tape.U_out, tape.acted
     h_norm = np.zeros(J) if history is None else np.abs(history).sum(-1)
     out = {}
@@ -528,5 +576,19 @@ def _run_modes(
             attempt,
             h_norm[part],
             hands.settled[part],
+            None if objects is None else objects.take(part),
         )
     return out
+
+
+def _row_beliefs(cfg: SimConfig, runs: ObjectRuns, copies: int, ticks: int) -> RowBeliefs:
+    """The beliefs of `copies` x N rows (one block of N per mode) over the objects of the
+    run `runs` as the robot perceives them, with its perception error's sd as the belief's
+    sigma (x, y and heading; 0 in z, roll, pitch)."""
+    assert cfg.objects is not None
+    p = np.tile(runs.perceived, (copies, 1, 1))  # (J, K, 3)
+    goals = planar_state(p[..., 0], p[..., 1], p[..., 2])
+    sd = cfg.objects.perception_sd(cfg.world.view_axis)
+    sigma = np.zeros((*p.shape[:2], 6))
+    sigma[..., 0], sigma[..., 1], sigma[..., 5] = sd
+    return RowBeliefs(goals, sigma, cfg.arbitration.belief, ticks)

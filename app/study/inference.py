@@ -15,8 +15,10 @@ in a fixed order, so a run is the same alone and in any batch, and the same in e
 
 `RowBeliefs` keeps the belief of every row of a batch (arbitration/belief.py: one
 `GoalBelief` over the rows' own perceived objects, sigma the perception error's sd along each
-base axis, the study's `ArbitrationConfig.belief`): each tick it is updated from the hand the
-robot receives (X_human and the one before), and gives the robot's goal (the MAP object's
+base axis, the study's `ArbitrationConfig.belief`): each tick it is updated from the hand's
+step as the robot receives it (X_human_prev to X_human), read at the robot's state (x =
+X_current, x' = `belief.commanded`: under assistance the mapped hand drifts from the robot,
+docs/METHOD.md §2 and §10), and gives the robot's goal (the MAP object's
 perceived pose) and its confidence per dimension and joint (docs/METHOD.md §10). It records
 each row's MAP object per tick, from which `map_stats` gives, over each row's trial, the MAP
 at the end, its switches and when it settled on the object the person wanted at the end.
@@ -30,7 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dsteleop.app.study.objects import Objects
-from dsteleop.arbitration.belief import BeliefParams, Confidence, GoalBelief
+from dsteleop.arbitration.belief import BeliefParams, Confidence, GoalBelief, commanded
 from dsteleop.arbitration.se3 import HandState
 
 Array = NDArray[np.float64]
@@ -133,10 +135,14 @@ class RowBeliefs:
         """(n,) the current rows' goals: their MAP object's perceived pose."""
         return self.model.goal_of(self._now.map_index)
 
-    def update(self, k: int, X_human: HandState, X_human_prev: HandState) -> None:
-        """Tick k: Bayes' rule from the hands the robot received (state k to k + 1), the
-        floor, the new MAP and confidence (recorded as state k + 1's MAP)."""
-        self.belief = self.model.update(self.belief, X_human, X_human_prev)
+    def update(
+        self, k: int, X_robot: HandState, X_human: HandState, X_human_prev: HandState
+    ) -> None:
+        """Tick k: Bayes' rule from the hand's step the robot received (state k to k + 1)
+        read at the robot's state X_robot (state k), the floor, the new MAP and confidence
+        (recorded as state k + 1's MAP)."""
+        moved = commanded(X_robot, X_human, X_human_prev)
+        self.belief = self.model.update(self.belief, moved, X_robot)
         self._now = self.model.confidence(self.belief)
         self.map_record[k + 1, self.ids] = self._now.map_index
 
@@ -186,3 +192,31 @@ def map_stats(
     k_last = np.where(change.any(axis=0), T - 1 - np.argmax(change[::-1], axis=0), 0)
     settled = np.where(final == target, k_last * dt_s, np.nan)
     return MapStats(final, switches, settled)
+
+
+@dataclass(frozen=True)
+class ObjectRows:
+    """What the objects world adds to the rows of a batch (arrays (J,)): the object each
+    row's person wanted at the end of its run, whether it changed its mind during the run,
+    and the MAP object over the run (`MapStats`).
+
+    Attributes:
+        true_xy: (K, 2) the objects' true positions [m].
+        wanted: the object each row's person wanted at the end of its run.
+        changed: the person changed its mind during the run.
+        map: the MAP over the run.
+    """
+
+    true_xy: Array
+    wanted: Index
+    changed: NDArray[np.bool_]
+    map: MapStats
+
+    def take(self, rows: slice) -> ObjectRows:
+        m = self.map
+        return ObjectRows(
+            self.true_xy,
+            self.wanted[rows],
+            self.changed[rows],
+            MapStats(m.final[rows], m.switches[rows], m.settled_s[rows]),
+        )

@@ -60,6 +60,8 @@ from dsteleop.app.operator.closed_loop import ClosedLoopOperator, Intention, Ope
 from dsteleop.app.operator.open_loop import OperatorStrategy, OperatorTrajectory, sample_trajectory
 from dsteleop.app.operator.world import Impairments
 from dsteleop.app.study.grasps import Grasps, settle_after
+from dsteleop.app.study.inference import ObjectRuns
+from dsteleop.app.study.objects import Objects
 from dsteleop.arbitration import ArbitrationConfig, HandState, Mode, registered, so3_exp
 from dsteleop.errors import ConfigError
 
@@ -69,12 +71,17 @@ OPERATORS: tuple[str, ...] = ("closed-loop", "side", "aligned", "deviate")
 OPEN_LOOP: tuple[str, ...] = ("side", "aligned", "deviate")
 
 
-def all_modes() -> tuple[Mode, ...]:
-    """Every registered mode (`arbitration.modes`) but those that read the robot's confidence
-    in its goal (`ModeSpec.reads_confidence`: the study tells the robot its goal, so they
-    would repeat the modes they temper; `--modes` runs them), S and DS first: the study's
-    default."""
-    rest = (m for m in registered() if m not in (Mode.S, Mode.DS) and not m.spec.reads_confidence)
+def all_modes(inference: bool = False) -> tuple[Mode, ...]:
+    """Every registered mode (`arbitration.modes`), S and DS first: the study's default. In a
+    world that tells the robot its goal (`inference` False) but those that read the robot's
+    confidence in its goal (`ModeSpec.reads_confidence`: with a told goal they repeat the
+    modes they temper; `--modes` runs them); in the objects world, where the robot infers
+    its goal, every one."""
+    rest = (
+        m
+        for m in registered()
+        if m not in (Mode.S, Mode.DS) and (inference or not m.spec.reads_confidence)
+    )
     return (Mode.S, Mode.DS, *rest)
 
 
@@ -140,6 +147,10 @@ class SimConfig:
         grasps: the disagreement world (`app.study.grasps.Grasps`: two right grasps, the
             robot going to one, each closed-loop person preferring one and adapting with its
             own probability), or None: the one grasp at the normal (the default world).
+        objects: the objects world (`app.study.objects.Objects`: K objects in a row, the
+            person wanting one and maybe changing its mind, the robot inferring which from
+            the hand and perceiving them with its own error; closed loop only), or None: the
+            robot is told its goal.
     """
 
     trajectories: int = 1000
@@ -169,6 +180,7 @@ class SimConfig:
     arbitration: ArbitrationConfig = field(default_factory=ArbitrationConfig)
     strategy: OperatorStrategy | None = None
     grasps: Grasps | None = None
+    objects: Objects | None = None
 
     def __post_init__(self) -> None:
         if isinstance(self.trajectories, bool) or not isinstance(self.trajectories, int):
@@ -213,6 +225,19 @@ class SimConfig:
             if not isinstance(self.grasps, Grasps):
                 raise ConfigError(f"grasps must be a Grasps, got {self.grasps!r}")
             self.grasps.check(self.success_heading_rad, self.operator_tolerance_rad)
+        if self.objects is not None:
+            if not isinstance(self.objects, Objects):
+                raise ConfigError(f"objects must be an Objects, got {self.objects!r}")
+            if self.grasps is not None:
+                raise ConfigError("the objects world and the disagreement world are apart")
+            if not self.closed_loop:
+                raise ConfigError("the objects world needs the closed-loop operator")
+            self.objects.check(self.success_radius_m, self.operator_tolerance_m)
+            if self.objects.count * self.arbitration.belief.epsilon >= 1.0:
+                raise ConfigError(
+                    f"belief.epsilon must be below 1/K = {1.0 / self.objects.count:.3g} for "
+                    f"{self.objects.count} objects, got {self.arbitration.belief.epsilon!r}"
+                )
 
     @property
     def grasp_headings(self) -> tuple[float, ...]:
@@ -270,7 +295,7 @@ class SimConfig:
                 v = _jsonable(dataclasses.asdict(self.operator_strategy))
             elif f.name == "profile":
                 v = _jsonable(dataclasses.asdict(self.operator_profile))
-            elif f.name == "grasps":
+            elif f.name in ("grasps", "objects"):
                 if v is None:  # the default world's summary stays as it was
                     continue
                 v = v.to_dict()
@@ -466,7 +491,10 @@ NEVER_SETTLES = 1_000_000
 
 
 def closed_operator(
-    cfg: SimConfig, trials: Sequence[ClosedTrial], attempt: int = 0
+    cfg: SimConfig,
+    trials: Sequence[ClosedTrial],
+    attempt: int = 0,
+    objects: ObjectRuns | None = None,
 ) -> ClosedLoopOperator:
     """The operators of `trials`, fresh (each mode starts them from the same state), in run
     `attempt` (each run its own random stream: (seed, n, 1) for run 0, then (seed, n, 1, a)).
@@ -475,21 +503,20 @@ def closed_operator(
     after resistance it settles for the task: the true handle and the normal (in the
     disagreement world: the robot's grasp), within the success radius and heading tolerance
     (the via stage of a y-first person is unchanged), at its first resistance pause (in the
-    disagreement world: at its own, `ClosedTrial.settle_after`)."""
+    disagreement world: at its own, `ClosedTrial.settle_after`). In the objects world
+    (`objects`: the run's draws of N people, the trials being copies of them, row r of
+    person r mod N) the handle is the object the person wants, and a person who changes its
+    mind wants the other one, and settles for it, from its change on."""
     N = len(trials)
     sx, sy = cfg.start_xy_m
     h0 = cfg.start_heading
-    goals = np.stack([t.operator_goal for t in trials])
+    heading = np.array([t.operator_goal[2] for t in trials])
     lead = np.array([t.lead for t in trials])
-    # Stage 0: along y first (to the handle's y, the start's x and heading) when leading;
-    # stage 1: the handle itself, with the operator's own heading.
-    via = np.stack([np.full(N, sx), goals[:, 1], np.full(N, h0)], -1)
-    first = np.where(lead[:, None], via, goals)
-    targets = planar_state(
-        np.stack([first[:, 0], goals[:, 0]], 1),
-        np.stack([first[:, 1], goals[:, 1]], 1),
-        np.stack([first[:, 2], goals[:, 2]], 1),
-    )
+    where = np.stack([t.operator_goal[:2] for t in trials])
+    person = np.arange(N) % (1 if objects is None else objects.wanted.size)
+    if objects is not None:  # the object each wants
+        where = objects.true_xy[objects.wanted[person]]
+    targets, task = _stage_poses(cfg, where, heading, lead)
     final = (cfg.operator_tolerance_m, cfg.operator_tolerance_rad, 1.0)
     passing = (0.05, math.pi, 1.0)  # a via point: near it in position, any heading
     tolerance = np.stack(
@@ -501,24 +528,49 @@ def closed_operator(
     y_only = np.array([0.0, 1.0, 0.0, 0.0, 0.0, 0.0])
     planar = np.array([1.0, 1.0, 0.0, 0.0, 0.0, 1.0])
     mask = np.stack([np.where(lead[:, None], y_only, planar), np.tile(planar, (N, 1))], 1)
-    hx, hy = cfg.handle_xy_m
-    task = planar_state(
-        np.stack([first[:, 0], np.full(N, hx)], 1),
-        np.stack([first[:, 1], np.full(N, hy)], 1),
-        np.stack([first[:, 2], np.full(N, cfg.robot_heading)], 1),
-    )
     accept = (cfg.success_radius_m, cfg.success_heading_rad, 1.0)
     task_tolerance = np.stack(
         [np.where(lead[:, None], passing, accept), np.broadcast_to(accept, (N, 3))], 1
     )
+    change_at = change_targets = change_settle = None
+    if objects is not None and objects.changes.any():
+        change_at = objects.change_at_s[person]
+        then = objects.true_xy[objects.final[person]]
+        change_targets, change_settle = _stage_poses(cfg, then, heading, lead)
     intention = Intention(
         targets, tolerance, mask, np.where(lead, 2, 1).astype(np.int64),
         np.array([t.turn_within_m for t in trials]), task, task_tolerance,
         None if cfg.grasps is None else np.array([t.settle_after for t in trials]),
+        change_at, change_targets, change_settle,
     )  # fmt: skip
     start = planar_state(np.full(N, sx), np.full(N, sy), np.full(N, h0))
     rngs = [np.random.default_rng(t.seed if attempt == 0 else (*t.seed, attempt)) for t in trials]
     return ClosedLoopOperator(intention, start, cfg.operator_profile, rngs, world=cfg.world)
+
+
+def _stage_poses(
+    cfg: SimConfig, xy: Array, heading: Array, lead: NDArray[np.bool_]
+) -> tuple[HandState, HandState]:
+    """The two stages (N, 2) of people who want the handle at `xy` (N, 2) with their own
+    `heading` (N,): stage 0 along y first (to the handle's y, the start's x and heading)
+    when leading, stage 1 the handle; and the task's (the same via, then the handle at the
+    robot's grasp heading)."""
+    N = xy.shape[0]
+    sx, h0 = cfg.start_xy_m[0], cfg.start_heading
+    goals = np.concatenate([xy, heading[:, None]], -1)
+    via = np.stack([np.full(N, sx), xy[:, 1], np.full(N, h0)], -1)
+    first = np.where(lead[:, None], via, goals)
+    targets = planar_state(
+        np.stack([first[:, 0], goals[:, 0]], 1),
+        np.stack([first[:, 1], goals[:, 1]], 1),
+        np.stack([first[:, 2], goals[:, 2]], 1),
+    )
+    task = planar_state(
+        np.stack([first[:, 0], xy[:, 0]], 1),
+        np.stack([first[:, 1], xy[:, 1]], 1),
+        np.stack([first[:, 2], np.full(N, cfg.robot_heading)], 1),
+    )
+    return targets, task
 
 
 def first_lead_index(cfg: SimConfig) -> int:
@@ -558,12 +610,16 @@ def figure_study(cfg: SimConfig) -> SimConfig:
     """The study behind Fig. 5/6 and the x-per-y remark: as in the paper, an operator who
     does not watch the robot. `cfg` itself when its operator is open loop; otherwise the
     paper's scenario (the `side` operator), S and DS, on the first `max_paths` trajectories
-    (the ones Fig. 5b draws; more if the example is beyond them) with the same seed."""
+    (the ones Fig. 5b draws; more if the example is beyond them) with the same seed; in the
+    objects world with the one handle of the paper's scenario (an open-loop operator does not
+    pick an object)."""
     if not cfg.closed_loop:
         return cfg
     wanted = max(cfg.max_paths, 1 if cfg.example is None else cfg.example + 1)
     n = min(cfg.trajectories, wanted)
-    return dataclasses.replace(cfg, operator=FIGURE_OPERATOR, modes=FIGURE_MODES, trajectories=n)
+    return dataclasses.replace(
+        cfg, operator=FIGURE_OPERATOR, modes=FIGURE_MODES, trajectories=n, objects=None
+    )
 
 
 def _jsonable(v: Any) -> Any:

@@ -201,6 +201,8 @@ def markdown(summary: dict[str, Any]) -> str:
     lines += divergence_section(summary["divergence"], "(x, y, heading)")
     if "disagreement" in summary:
         lines += disagreement_section(summary["disagreement"])
+    if "objects" in summary:
+        lines += objects_section(summary["objects"])
     c = summary["config"]
     lines += [
         "",
@@ -246,6 +248,61 @@ def disagreement_section(d: dict[str, Any]) -> list[str]:
                 f"| {name} | {label} ({r['n']} runs) | {sr['estimate']:.3f} [{lo:.3f}, {hi:.3f}] "
                 f"| {r['time_s']:.2f} | {r['gave_up_share']:.3f} | {r['switched_share']:.3f} "
                 f"| {r['successes_in']['top']} / {r['successes_in']['side']} |"
+            )
+    return lines
+
+
+def objects_section(d: dict[str, Any]) -> list[str]:
+    """The objects world's tables: each mode's outcomes and its MAP object, over every run and
+    apart for the runs with and without a change of mind; then DSC against each mode."""
+    o = d["objects"]
+    lines = [
+        "",
+        "## The objects world: the robot infers which object the person wants",
+        "",
+        f"{o['count']} objects {o['spacing_m']:g} m apart; the robot's perception error "
+        f"{1000 * o['perception_depth_m']:g} mm along its view, "
+        f"{1000 * o['perception_lateral_m']:g} mm across, {o['perception_heading_rad']:g} rad "
+        f"in the heading; the person changes its mind in a share {o['change_share']:g} of runs "
+        f"(docs/operator.md).",
+        "",
+        "| Mode | Runs | Success [95 % CI] | Time [s] | Gave up | Wrong object "
+        "| MAP right at the end | MAP settled [s], median | MAP switches |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    labels = {"all": "all", "kept_mind": "kept its mind", "changed_mind": "changed its mind"}
+    for name, per in d["modes"].items():
+        for key, label in labels.items():
+            r = per[key]
+            if not r["n"]:
+                continue
+            sr = r["success_rate"]
+            lo, hi = sr["ci95"]
+            settled = r["map_settled_s_median"]
+            lines.append(
+                f"| {name} | {label} ({r['n']}) | {sr['estimate']:.3f} [{lo:.3f}, {hi:.3f}] "
+                f"| {r['time_s']:.2f} | {r['gave_up_share']:.3f} | {r['wrong_object_share']:.3f} "
+                f"| {r['map_right_at_end_share']:.3f} | "
+                f"{'n/a' if settled is None else f'{settled:.2f}'} | {r['map_switches_mean']:.2f} |"
+            )
+    if d["DSC_versus"]:
+        lines += [
+            "",
+            "DSC against each mode on the same runs (success difference DSC minus the mode, "
+            "McNemar's exact p; a win or a loss where p < 0.05; time ratio DSC / the mode):",
+            "",
+            "| Versus | Success difference [95 % CI] | McNemar exact p | Verdict for DSC "
+            "| Time ratio [95 % CI] |",
+            "| --- | --- | --- | --- | --- |",
+        ]
+        for name, v in d["DSC_versus"].items():
+            lo, hi = v.get("ci95", (float("nan"), float("nan")))
+            tlo, thi = v.get("time_ratio_ci95", (float("nan"), float("nan")))
+            verdict = v["verdict"].replace("a ", "DSC ")
+            lines.append(
+                f"| {name} | {v.get('success_difference', float('nan')):+.3f} [{lo:+.3f}, "
+                f"{hi:+.3f}] | {_p(v['mcnemar']['p_exact'])} | {verdict} | "
+                f"x{v.get('time_ratio', float('nan')):.2f} [{tlo:.2f}, {thi:.2f}] |"
             )
     return lines
 

@@ -23,9 +23,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from dsteleop.app.study.inference import ObjectRows
 from dsteleop.app.study.planar import Array, SimConfig, in_success_region
 from dsteleop.arbitration import metrics
 from dsteleop.arbitration.se3 import ROT, TRANS
+from dsteleop.errors import ContractError
 
 DEAD_BAND_MPS = 0.001  # the dead-band variant skips output actions slower than this [m/s]
 HIST_BINS = 16
@@ -61,6 +63,13 @@ class ModeResult:
     attempt: NDArray[np.int64]  # (N,) the run of each row (0 first)
     history_norm: Array  # (N,) |eq (6)'s history term| (L1) the run's arbitration received
     settled: NDArray[np.bool_]  # (N,) the closed-loop operator settled (the task's or robot's way)
+    # The objects world (`app.study.inference.ObjectRows`; -1, False, NaN in the others):
+    wanted: NDArray[np.intp]  # (N,) the object the person wanted at the end of its run
+    changed: NDArray[np.bool_]  # (N,) the person changed its mind during the run
+    grasped: NDArray[np.intp]  # (N,) the object within R of the settled pose (-1: none)
+    map_final: NDArray[np.intp]  # (N,) the robot's MAP object at the end
+    map_switches: NDArray[np.int64]  # (N,) how often the MAP changed during the run
+    map_settled_s: Array  # (N,) since when the MAP was the wanted object [s] (NaN: not at the end)
 
 
 #: ModeResult's fields that are not one row per trial (summed or kept for the first paths).
@@ -135,10 +144,12 @@ def mode_result(
     attempt: int = 0,
     history_norm: Array | None = None,
     settled: NDArray[np.bool_] | None = None,
+    objects: ObjectRows | None = None,
 ) -> ModeResult:
     """One mode's per-trajectory results from its robot's and hand's states (T, N, 3) and
     its actions (T - 1, N, ...), time-major. A closed-loop trial succeeds only if its operator
-    committed and the robot's settled pose (the trial's last) is in the success region."""
+    committed and the robot's settled pose (the trial's last) is in the success region (in
+    the objects world, `objects`: the region of the object its person wanted at the end)."""
     T, N = poses_tm.shape[:2]
     # (N, T, ...) views, as for the actions below.
     poses, hand = np.swapaxes(poses_tm, 0, 1), np.swapaxes(hand_tm, 0, 1)
@@ -179,9 +190,13 @@ def mode_result(
     rows = np.arange(N)
     last = lengths - 1
 
+    handle: Array | tuple[float, float] = cfg.handle_xy_m
+    if objects is not None:
+        handle = objects.true_xy[objects.wanted]
+
     def inside(p: Array) -> NDArray[np.bool_]:
         return in_success_region(
-            p[..., :2], p[..., 2], cfg.handle_xy_m, cfg.grasp_headings,
+            p[..., :2], p[..., 2], handle, cfg.grasp_headings,
             cfg.success_radius_m, cfg.success_heading_rad,
         )  # fmt: skip
 
@@ -220,7 +235,31 @@ def mode_result(
         attempt=np.full(N, attempt, dtype=np.int64),
         history_norm=np.zeros(N) if history_norm is None else history_norm,
         settled=np.zeros(N, dtype=bool) if settled is None else settled,
+        **_object_fields(cfg, poses[rows, last], objects, N),
     )
+
+
+def _object_fields(
+    cfg: SimConfig, final: Array, objects: ObjectRows | None, N: int
+) -> dict[str, Any]:
+    """ModeResult's objects-world fields: the wanted object, the change of mind, the object
+    within the success radius of the settled pose `final` (N, 3) (-1: none) and the MAP's
+    statistics; neutral values in the other worlds."""
+    if objects is None:
+        none = np.full(N, -1, dtype=np.intp)
+        return {
+            "wanted": none, "changed": np.zeros(N, dtype=bool), "grasped": none,
+            "map_final": none, "map_switches": np.zeros(N, dtype=np.int64),
+            "map_settled_s": np.full(N, np.nan),
+        }  # fmt: skip
+    d = np.linalg.norm(final[:, None, :2] - objects.true_xy[None], axis=-1)  # (N, K)
+    near = np.argmin(d, axis=1)
+    grasped = np.where(d[np.arange(N), near] <= cfg.success_radius_m, near, -1)
+    return {
+        "wanted": objects.wanted, "changed": objects.changed, "grasped": grasped,
+        "map_final": objects.map.final, "map_switches": objects.map.switches,
+        "map_settled_s": objects.map.settled_s,
+    }  # fmt: skip
 
 
 VARIANTS = {
@@ -298,7 +337,7 @@ def merge(cfg: SimConfig, chunks: Sequence[ChunkResult]) -> StudyResult:
     ordered = sorted(chunks, key=lambda c: int(c.indices[0]))
     idx = np.concatenate([c.indices for c in ordered])
     if not np.array_equal(idx, np.arange(cfg.trajectories)):
-        raise ValueError("chunks do not cover the trajectories exactly once")
+        raise ContractError("chunks do not cover the trajectories exactly once")
 
     modes = {m.value: concat_results([c.modes[m.value] for c in ordered]) for m in cfg.modes}
     return StudyResult(

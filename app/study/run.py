@@ -18,10 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from dsteleop.app.progress import Progress
 from dsteleop.app.study.batch import run_chunk
 from dsteleop.app.study.planar import SimConfig
 from dsteleop.app.study.results import ChunkResult, StudyResult, merge
+from dsteleop.app.tasks.progress import Progress
 from dsteleop.arbitration.arbiters import compile_kernels
 from dsteleop.errors import ConfigError
 

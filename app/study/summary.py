@@ -128,7 +128,78 @@ def summarise(res: StudyResult, figures: StudyResult | None = None) -> dict[str,
         out["tests"]["scalar_vs_DS"] = compare(res.modes["scalar"], res.modes["DS"])
     if cfg.grasps is not None and cfg.closed_loop:
         out["disagreement"] = disagreement_summary(res)
+    if cfg.objects is not None:
+        out["objects"] = objects_summary(res)
     return out
+
+
+#: The verdict of a paired comparison: a win or a loss where McNemar's exact p is below this.
+ALPHA = 0.05
+
+
+def versus(
+    success_a: NDArray[np.bool_], success_b: NDArray[np.bool_], time_a: Array, time_b: Array
+) -> dict[str, Any]:
+    """Mode a against mode b on the same runs: the mean paired difference of success (a minus
+    b) with its 95 % t interval, McNemar's exact and mid-p tests, the ratio of geometric-mean
+    times (a over b) with its paired interval, and the verdict (`a wins` / `a loses` where
+    McNemar's exact p < ALPHA, by the sign of the difference, else `tie`)."""
+    a, b = success_a.astype(np.float64), success_b.astype(np.float64)
+    mc = metrics.mcnemar(success_a, success_b)
+    out: dict[str, Any] = {"n": int(a.size), "mcnemar": dataclasses.asdict(mc)}
+    if a.size >= 2:
+        diff = metrics.paired_difference(a, b)
+        logd = metrics.paired_difference(np.log(time_a), np.log(time_b))
+        out.update(
+            success_difference=diff.mean,
+            ci95=[diff.ci_low, diff.ci_high],
+            time_ratio=math.exp(logd.mean),
+            time_ratio_ci95=[math.exp(logd.ci_low), math.exp(logd.ci_high)],
+        )
+    d = float(a.mean() - b.mean()) if a.size else 0.0
+    out["verdict"] = ("a wins" if d > 0 else "a loses") if mc.p_exact < ALPHA and d != 0 else "tie"
+    return out
+
+
+def objects_summary(res: StudyResult) -> dict[str, Any]:
+    """The objects world's outcomes (docs/operator.md): per mode, over every run and apart
+    for the runs in which the person kept its mind and those in which it changed it, the
+    success, time, give-ups, failures at another object than the one wanted, and the robot's
+    MAP object (right at the end, when it settled there, how often it switched); and DSC
+    against every other mode on the same runs (`versus`)."""
+    cfg = res.config
+    assert cfg.objects is not None
+    out: dict[str, Any] = {"objects": cfg.objects.to_dict(), "modes": {}, "DSC_versus": {}}
+    for name, r in res.modes.items():
+        groups = {"all": np.ones(r.success.size, dtype=bool), "kept_mind": ~r.changed}
+        groups["changed_mind"] = r.changed
+        out["modes"][name] = {k: _objects_group(r, rows) for k, rows in groups.items()}
+    if "DSC" in res.modes:
+        a = res.modes["DSC"]
+        for name, b in res.modes.items():
+            if name != "DSC":
+                out["DSC_versus"][name] = versus(a.success, b.success, a.time_s, b.time_s)
+    return out
+
+
+def _objects_group(r: ModeResult, rows: NDArray[np.bool_]) -> dict[str, Any]:
+    n = int(rows.sum())
+    if n == 0:
+        return {"n": 0}
+    sr = metrics.success_rate(int(r.success[rows].sum()), n)
+    wrong = r.committed & (r.grasped >= 0) & (r.grasped != r.wanted)
+    right = r.map_final[rows] == r.wanted[rows]
+    settled = r.map_settled_s[rows]
+    return {
+        "n": n,
+        "success_rate": {"estimate": sr.laplace, "ci95": [sr.ci_low, sr.ci_high]},
+        "time_s": metrics.geometric_mean(r.time_s[rows]).mean,
+        "gave_up_share": float(r.gave_up[rows].mean()),
+        "wrong_object_share": float(wrong[rows].mean()),
+        "map_right_at_end_share": float(right.mean()),
+        "map_settled_s_median": float(np.median(settled[right])) if right.any() else None,
+        "map_switches_mean": float(r.map_switches[rows].mean()),
+    }
 
 
 def disagreement_summary(res: StudyResult) -> dict[str, Any]:

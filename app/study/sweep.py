@@ -20,7 +20,7 @@ paper's statistics (`dsteleop.arbitration.metrics`):
     verdict        `DS wins` / `DS loses` where McNemar's exact p < 0.05 (the sign of the
                    difference), otherwise `tie`
 
-Cells run as Ray tasks (`app.tune.cluster.RayExecutor`: a local cluster on 127.0.0.1, or an
+Cells run as Ray tasks (`app.tasks.cluster.RayExecutor`: a local cluster on 127.0.0.1, or an
 existing one at `--address`); each finished cell is written at once to DIR/cells/<cell>.json
 (with the settings that define it), so a stopped sweep resumes where it was (`--resume`
 skips the cells whose file is there with the same settings). Nothing of the computation
@@ -32,6 +32,7 @@ other level of each axis (7 cells of the default 3 x 3 x 3), for a study per lev
 default every cell runs with the study's one arbitration; with `CellConfig`s
 (`--cell-configs DIR`) each cell runs with the configuration tuned for it, and its file and
 the file's SHA-256 are recorded with its results (scripts/tune_sweep.py makes them).
+sweep.md and sweep.png are drawn from the summary by app/study/sweep_report.py.
 """
 
 from __future__ import annotations
@@ -49,10 +50,13 @@ from typing import Any
 import numpy as np
 
 from dsteleop.app.operator.world import Impairments
+from dsteleop.app.study import sweep_report
 from dsteleop.app.study.batch import run_chunk
+from dsteleop.app.study.objects import MAX_OBJECTS
 from dsteleop.app.study.planar import SimConfig
 from dsteleop.app.study.results import merge
-from dsteleop.app.study.summary import censored
+from dsteleop.app.study.summary import censored, versus
+from dsteleop.app.tasks.executor import Cluster, TaskError
 from dsteleop.arbitration import ArbitrationConfig, metrics
 from dsteleop.errors import ConfigError, InputError
 
@@ -61,6 +65,13 @@ SCHEMA = "dsteleop.sim_sweep/1"
 CHUNK = 250
 #: The grid's axes: name on the command line -> field of `Impairments` [unit].
 AXES: dict[str, str] = {"goal": "goal_sigma_m", "delay": "delay_s", "depth": "depth_sigma_m"}
+#: The objects world's two more axes (`axes_of`): the robot's perception error along its view
+#: [m] (the lateral one keeps its ratio to it) and the number of objects, as the fields of
+#: `Objects` they set.
+OBJECT_AXES: dict[str, str] = {
+    "perception": "objects.perception_depth_m",
+    "objects": "objects.count",
+}
 #: Levels above 0 of an axis whose default is 0 (no literature value set yet): goal noise
 #: [m], delay [s], depth error [m]. An axis with a default d > 0 has the levels 0, d, 2 d.
 FALLBACK_LEVELS: dict[str, tuple[float, float]] = {
@@ -76,48 +87,70 @@ ALPHA = 0.05
 DESIGNS: tuple[str, ...] = ("grid", "axes")
 
 
+def axes_of(cfg: SimConfig | None = None) -> dict[str, str]:
+    """The axes of a study's world: `AXES`, and in the objects world `OBJECT_AXES` too."""
+    if cfg is None or cfg.objects is None:
+        return dict(AXES)
+    return {**AXES, **OBJECT_AXES}
+
+
 @dataclass(frozen=True)
 class Grid:
-    """The levels of each axis (`AXES`); the cells are their product, goal-major."""
+    """The levels of each axis (`axes_of` the world, in that order); the cells are their
+    product, the first axis slowest."""
 
     levels: dict[str, tuple[float, ...]]
 
     def cells(self) -> list[tuple[float, ...]]:
-        """Every (goal, delay, depth) of the grid."""
+        """Every (goal, delay, depth[, perception, objects]) of the grid."""
         out: list[tuple[float, ...]] = [()]
-        for axis in AXES:
+        for axis in self.levels:
             out = [(*c, v) for c in out for v in self.levels[axis]]
         return out
 
     def to_dict(self) -> dict[str, list[float]]:
-        return {axis: list(self.levels[axis]) for axis in AXES}
+        return {axis: list(v) for axis, v in self.levels.items()}
 
 
-def default_levels(axis: str) -> tuple[float, ...]:
-    """0, the default d of `Impairments` and 2 d; 0 and `FALLBACK_LEVELS` when d is 0."""
+def default_levels(axis: str, cfg: SimConfig | None = None) -> tuple[float, ...]:
+    """0, the default d of `Impairments` and 2 d; 0 and `FALLBACK_LEVELS` when d is 0. In
+    the objects world (`cfg.objects`) the impairments keep the study's one value (their map
+    is the told-goal world's), the perception error has 0, d and 2 d of the world's, and the
+    number of objects K - 1, K and K + 2."""
+    if cfg is not None and cfg.objects is not None:
+        o = cfg.objects
+        if axis == "perception":
+            d = o.perception_depth_m
+            return (0.0, d, 2.0 * d) if d > 0 else (0.0, 0.02, 0.04)
+        if axis == "objects":
+            return tuple(float(k) for k in (o.count - 1, o.count, o.count + 2) if k >= 1)
+        return (float(getattr(cfg.world, AXES[axis])),)
     d = float(getattr(Impairments(), AXES[axis]))
     return (0.0, d, 2.0 * d) if d > 0 else (0.0, *FALLBACK_LEVELS[axis])
 
 
-def default_grid() -> Grid:
-    return Grid({axis: default_levels(axis) for axis in AXES})
+def default_grid(cfg: SimConfig | None = None) -> Grid:
+    return Grid({axis: default_levels(axis, cfg) for axis in axes_of(cfg)})
 
 
-def parse_grid(specs: Sequence[str]) -> Grid:
-    """A grid from `AXIS=V1,V2,...` specs; an axis not given keeps its default levels.
+def parse_grid(specs: Sequence[str], cfg: SimConfig | None = None) -> Grid:
+    """A grid from `AXIS=V1,V2,...` specs over the axes of `cfg`'s world (`axes_of`); an axis
+    not given keeps its default levels.
 
     Raises:
         ConfigError: an unknown or repeated axis, a value that is not a finite number >= 0,
-            no value, or a repeated value (one line).
+            no value, or a repeated value; a number of objects that is not a whole number
+            in [1, 9] (one line).
     """
-    levels = {axis: default_levels(axis) for axis in AXES}
+    axes = axes_of(cfg)
+    levels = {axis: default_levels(axis, cfg) for axis in axes}
     seen: set[str] = set()
     for spec in specs:
         axis, sep, values = spec.partition("=")
         axis = axis.strip()
-        if not sep or axis not in AXES:
+        if not sep or axis not in axes:
             raise ConfigError(
-                f"--sweep {spec!r}: expected AXIS=V1,V2,... with AXIS one of {', '.join(AXES)}"
+                f"--sweep {spec!r}: expected AXIS=V1,V2,... with AXIS one of {', '.join(axes)}"
             )
         if axis in seen:
             raise ConfigError(f"--sweep: axis {axis!r} given twice")
@@ -132,20 +165,35 @@ def parse_grid(specs: Sequence[str]) -> Grid:
                 raise ConfigError(f"--sweep {spec!r}: levels must be finite and >= 0, got {v}")
             if v in out:
                 raise ConfigError(f"--sweep {spec!r}: level {v:g} given twice")
+            if axis == "objects" and not (v == int(v) and 1 <= v <= MAX_OBJECTS):
+                raise ConfigError(
+                    f"--sweep {spec!r}: a number of objects must be a whole number in "
+                    f"[1, {MAX_OBJECTS}], got {v:g}"
+                )
             out.append(v)
         levels[axis] = tuple(out)
     return Grid(levels)
 
 
 def cell_name(cell: Sequence[float]) -> str:
-    """The cell's file name stem, e.g. `goal0.02_delay0.15_depth0`."""
-    return "_".join(f"{axis}{v:g}" for axis, v in zip(AXES, cell, strict=True))
+    """The cell's file name stem, e.g. `goal0.02_delay0.15_depth0` (the objects world's
+    `..._perception0.02_objects3`)."""
+    names = list(AXES) if len(cell) == len(AXES) else [*AXES, *OBJECT_AXES]
+    return "_".join(f"{axis}{v:g}" for axis, v in zip(names, cell, strict=True))
+
+
+def _field(cfg: SimConfig, path: str) -> float:
+    """The value of an axis's field (`AXES`: of `cfg.world`; `OBJECT_AXES`: `objects.<f>`)."""
+    if path.startswith("objects."):
+        assert cfg.objects is not None
+        return float(getattr(cfg.objects, path.removeprefix("objects.")))
+    return float(getattr(cfg.world, path))
 
 
 def centre(cfg: SimConfig) -> tuple[float, ...]:
-    """The world's own (goal, delay, depth) (`cfg.world`): the cell the `axes` design varies
-    one impairment at a time from."""
-    return tuple(float(getattr(cfg.world, f)) for f in AXES.values())
+    """The world's own (goal, delay, depth[, perception, objects]) (`cfg.world`, `cfg.objects`):
+    the cell the `axes` design varies one impairment at a time from."""
+    return tuple(_field(cfg, f) for f in axes_of(cfg).values())
 
 
 def design_cells(grid: Grid, design: str, middle: Sequence[float]) -> list[tuple[float, ...]]:
@@ -165,7 +213,7 @@ def design_cells(grid: Grid, design: str, middle: Sequence[float]) -> list[tuple
     cells = grid.cells()
     if design == "grid":
         return cells
-    for axis, v in zip(AXES, middle, strict=True):
+    for axis, v in zip(grid.levels, middle, strict=True):
         if v not in grid.levels[axis]:
             levels = ", ".join(f"{x:g}" for x in grid.levels[axis])
             raise ConfigError(
@@ -202,9 +250,19 @@ def cell_study(cfg: SimConfig, name: str, configs: dict[str, CellConfig] | None)
 
 
 def with_world(cfg: SimConfig, cell: Sequence[float]) -> SimConfig:
-    """The study `cfg` in the world of `cell` (its other impairments kept)."""
-    world = cfg.world.replace(**{f: float(v) for f, v in zip(AXES.values(), cell, strict=True)})
+    """The study `cfg` in the world of `cell` (its other impairments kept; in the objects world
+    the perception error along the view and, in proportion, across it, and the number of
+    objects)."""
+    world = cfg.world.replace(**{f: float(v) for f, v in zip(AXES.values(), cell, strict=False)})
     changes: dict[str, Any] = {"world": world}
+    if len(cell) > len(AXES):
+        o = cfg.objects
+        assert o is not None
+        depth, count = float(cell[len(AXES)]), int(cell[len(AXES) + 1])
+        ratio = o.perception_lateral_m / o.perception_depth_m if o.perception_depth_m > 0 else 0.25
+        changes["objects"] = dataclasses.replace(
+            o, perception_depth_m=depth, perception_lateral_m=ratio * depth, count=count
+        )
     if "goal_sigma_m" in {f.name for f in dataclasses.fields(SimConfig)}:
         # Until the study reads its goal noise from `world` (the impairments' mechanisms),
         # the goal axis sets the field it reads today.
@@ -245,7 +303,7 @@ def cell_task(cfg: SimConfig, cell: Sequence[float]) -> dict[str, Any]:
         }
     return {
         "schema": SCHEMA,
-        "cell": dict(zip(AXES.values(), map(float, cell), strict=True)),
+        "cell": dict(zip(axes_of(cfg).values(), map(float, cell), strict=True)),
         "world": c.world.to_dict(),
         "settings": settings(cfg),
         "modes": modes,
@@ -309,6 +367,14 @@ def summarise_cell(data: dict[str, Any]) -> dict[str, Any]:
             "time_ratio_ci95": [math.exp(logd.ci_low), math.exp(logd.ci_high)],
             "verdict": verdict,
         }
+    if "DSC" in per:  # the objects world: DSC against every other mode (app.study.summary)
+        out["dsc_versus"] = {
+            m: {**versus(success["DSC"], success[m], times["DSC"], times[m])}
+            for m in per
+            if m != "DSC"
+        }
+        for v in out["dsc_versus"].values():
+            v["verdict"] = v["verdict"].replace("a ", "DSC ")
     return out
 
 
@@ -383,7 +449,7 @@ def run_sweep(
     cfg: SimConfig,
     grid: Grid,
     out: Path,
-    executor: Callable[[], Any],
+    executor: Callable[[], Cluster],
     on_cell: Callable[[str, bool], None] | None = None,
     design: str = "grid",
     configs: dict[str, CellConfig] | None = None,
@@ -418,8 +484,6 @@ def run_sweep(
     cluster: dict[str, Any] | None = None
     start_s = 0.0
     if todo:
-        from dsteleop.app.tune.driver import TaskError
-
         t1 = time.perf_counter()
         with executor() as ex:
             start_s = time.perf_counter() - t1
@@ -450,7 +514,7 @@ def run_sweep(
     summary = {
         "schema": SCHEMA,
         "grid": grid.to_dict(),
-        "axes": dict(AXES),
+        "axes": axes_of(cfg),
         "trajectories": cfg.trajectories,
         "seed": cfg.seed,
         "modes": [m.value for m in cfg.modes],
@@ -468,9 +532,13 @@ def run_sweep(
         "config": settings(cfg),
         "world": cfg.world.to_dict(),
     }
+    if any("dsc_versus" in c for c in summaries):
+        summary["dsc_counts"] = _dsc_counts(summaries)
+    if cfg.objects is not None:
+        summary["objects"] = cfg.objects.to_dict()
     if design != "grid":
         summary["design"] = design
-        summary["centre"] = dict(zip(AXES.values(), centre(cfg), strict=True))
+        summary["centre"] = dict(zip(axes_of(cfg).values(), centre(cfg), strict=True))
     if configs is not None:
         # Each cell has its own arbitration (its file and hash per cell, the parameters in
         # DIR/cells/<cell>.json): the study's one is none of them.
@@ -490,150 +558,19 @@ def _counts(cells: Sequence[dict[str, Any]]) -> dict[str, int]:
     return out
 
 
+def _dsc_counts(cells: Sequence[dict[str, Any]]) -> dict[str, dict[str, int]]:
+    """Per mode DSC was set against: the cells where DSC wins, ties and loses."""
+    out: dict[str, dict[str, int]] = {}
+    for c in cells:
+        for m, v in c.get("dsc_versus", {}).items():
+            out.setdefault(m, {"DSC wins": 0, "tie": 0, "DSC loses": 0})[v["verdict"]] += 1
+    return out
+
+
 def _write_atomic(path: Path, data: dict[str, Any]) -> None:
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(data, allow_nan=False) + "\n")
     os.replace(tmp, path)
-
-
-# --- outputs ----------------------------------------------------------------------------------
-
-
-def markdown(summary: dict[str, Any]) -> str:
-    """sweep.md: one row per cell."""
-    modes = summary["modes"]
-    lines = [
-        f"# Sweep: {len(summary['cells'])} cells x {len(modes)} modes x "
-        f"{summary['trajectories']} trajectories (seed {summary['seed']}, operator "
-        f"`{summary['operator']}`)",
-        "",
-        "Every mode of a cell runs on the same trajectories (paired). Per mode: success "
-        "(Laplace estimate) / geometric-mean time [s]. Best: the most successes (ties: the "
-        "shorter time). DS - scalar: DS's success minus the best single-alpha mode's "
-        f"({', '.join(summary['scalar_modes']) or 'none present'}), mean paired difference "
-        "with its 95 % interval; McNemar's exact and mid-p tests of the paired outcomes; "
-        f"verdict by the exact p < {summary['alpha']}.",
-        "",
-        f"Counts: {', '.join(f'{k} {v}' for k, v in summary['counts'].items())}.",
-        "",
-    ]
-    if "design" in summary:
-        c = summary["centre"]
-        lines += [
-            f"Design: {summary['design']}: the centre (goal {c['goal_sigma_m']:g} m, delay "
-            f"{c['delay_s']:g} s, depth {c['depth_sigma_m']:g} m) and each other level of one "
-            "axis at a time.",
-            "",
-        ]
-    configs = "cell_configs" in summary
-    if configs:
-        lines += [
-            "Each cell ran with its own configuration (file, first 12 hex digits of its "
-            "SHA-256; the parameters in cells/<cell>.json).",
-            "",
-        ]
-    lines += [
-        "| goal sigma [m] | delay [s] | depth sigma [m] | "
-        + " | ".join(modes)
-        + " | best | DS - best scalar [95 % CI] | McNemar p (exact / mid) | verdict |"
-        + (" configuration |" if configs else ""),
-        "| --- | --- | --- |"
-        + " --- |" * len(modes)
-        + " --- | --- | --- | --- |"
-        + (" --- |" if configs else ""),
-    ]
-    for c in summary["cells"]:
-        g, d, z = (c["cell"][f] for f in AXES.values())
-        row = [f"{g:g}", f"{d:g}", f"{z:g}"]
-        for m in modes:
-            r = c["modes"].get(m)
-            row.append("n/a" if r is None else f"{r['success']:.3f} / {r['time_s']:.1f}")
-        row.append(str(c["best_mode"]))
-        x = c.get("ds_minus_best_scalar")
-        if x is None:
-            row += ["n/a", "n/a", "n/a"]
-        else:
-            lo, hi = x["ci95"]
-            row.append(f"{x['success_difference']:+.3f} [{lo:+.3f}, {hi:+.3f}] vs {x['versus']}")
-            row.append(f"{_p(x['mcnemar']['p_exact'])} / {_p(x['mcnemar']['p_mid'])}")
-            row.append(x["verdict"])
-        if configs:
-            rec = c.get("configuration") or {"file": "n/a", "sha256": ""}
-            row.append(f"`{Path(rec['file']).name}` {rec['sha256'][:12]}")
-        lines.append("| " + " | ".join(row) + " |")
-    if summary["failed"]:
-        lines += ["", "Failed cells:", ""]
-        lines += [f"- {k}: {v}" for k, v in summary["failed"].items()]
-    lines.append("")
-    return "\n".join(lines)
-
-
-def figure(summary: dict[str, Any], path: Path) -> None:
-    """sweep.png: one panel per depth level, goal (rows) x delay (columns); colour = DS minus
-    the best scalar mode's success, label = the best mode and the difference with its
-    interval (* where McNemar's exact p < alpha)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    grid = summary["grid"]
-    goals, delays, depths = grid["goal"], grid["delay"], grid["depth"]
-    by = {tuple(c["cell"][f] for f in AXES.values()): c for c in summary["cells"]}
-    diffs = [
-        abs(c["ds_minus_best_scalar"]["success_difference"])
-        for c in summary["cells"]
-        if "ds_minus_best_scalar" in c
-    ]
-    vmax = max([0.05, *diffs])
-    fig, axes = plt.subplots(
-        1,
-        len(depths),
-        figsize=(1.9 * len(delays) * len(depths) + 1.5, 1.0 * len(goals) + 1.6),
-        squeeze=False,
-    )
-    image = None
-    for k, z in enumerate(depths):
-        ax = axes[0, k]
-        val = np.full((len(goals), len(delays)), np.nan)
-        for i, g in enumerate(goals):
-            for j, d in enumerate(delays):
-                c = by.get((g, d, z))
-                if c is None:
-                    ax.text(j, i, "not run", ha="center", va="center", fontsize=7)
-                    continue
-                x = c.get("ds_minus_best_scalar")
-                label = str(c["best_mode"])
-                dark = False
-                if x is not None:
-                    val[i, j] = x["success_difference"]
-                    dark = abs(val[i, j]) > 0.6 * vmax
-                    lo, hi = x["ci95"]
-                    star = "*" if x["mcnemar"]["p_exact"] < summary["alpha"] else ""
-                    label += f"\n{x['success_difference']:+.3f}{star}\n[{lo:+.3f}, {hi:+.3f}]"
-                colour = "white" if dark else "black"
-                ax.text(j, i, label, ha="center", va="center", fontsize=7, color=colour)
-        image = ax.imshow(val, cmap="RdBu", vmin=-vmax, vmax=vmax, aspect="auto")
-        ax.set_xticks(range(len(delays)), [f"{d:g}" for d in delays])
-        ax.set_yticks(range(len(goals)), [f"{g:g}" for g in goals])
-        ax.set_xlabel("delay [s]")
-        if k == 0:
-            ax.set_ylabel("goal noise sigma [m]")
-        ax.set_title(f"depth error sigma {z:g} m", fontsize=9)
-    if image is not None:
-        bar = fig.colorbar(image, ax=list(axes[0]), shrink=0.9)
-        bar.set_label("success: DS minus best scalar")
-    fig.suptitle(
-        f"Where DS helps: best mode per cell; colour = DS - best scalar success "
-        f"({summary['trajectories']} paired trajectories, * McNemar p < {summary['alpha']})",
-        fontsize=9,
-    )
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def _p(p: float) -> str:
-    return f"{p:.3g}" if p >= 1e-300 else "< 1e-300"
 
 
 # --- the command (`dsteleop sim --sweep`) -------------------------------------------------------
@@ -666,8 +603,8 @@ def run_command(
     """
     import sys
 
-    from dsteleop.app.progress import Progress
-    from dsteleop.app.tune.cluster import RayExecutor, check_reachable
+    from dsteleop.app.tasks.cluster import RayExecutor, check_reachable
+    from dsteleop.app.tasks.progress import Progress
 
     check_out(out, resume)
     check_reachable(address)
@@ -684,10 +621,10 @@ def run_command(
         )
     s = run.summary
     (out / "sweep.json").write_text(json.dumps(s, indent=2, allow_nan=False) + "\n")
-    (out / "sweep.md").write_text(markdown(s))
+    (out / "sweep.md").write_text(sweep_report.markdown(s))
     files = ["sweep.json", "sweep.md"]
     if figures and s["cells"]:
-        figure(s, out / "sweep.png")
+        sweep_report.figure(s, out / "sweep.png")
         files.append("sweep.png")
     json.dump(
         {

@@ -9,9 +9,9 @@ told the results as they arrive.
             constraint (app/tune/objective.py); a task that raised fails the trial, which is
             recorded as failed (its error kept) while the study goes on
 
-The executor is the only seam to a cluster (`Executor`): `LocalExecutor` runs tasks in this
-process (the trial function's throughput alone), `app/tune/cluster.py` runs them as Ray tasks;
-nothing here imports Ray.
+The executor is the only seam to a cluster (`app.tasks.executor.Executor`): `LocalExecutor`
+runs tasks in this process (the trial function's throughput alone), `app.tasks.cluster`'s
+`RayExecutor` runs them as Ray tasks; nothing here imports Ray.
 
 The study lives in DIR (`study.journal`, Optuna's journal storage, with the settings that
 define the search in the study's attributes), so `--resume` continues it: trials that were
@@ -31,10 +31,11 @@ import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, Protocol
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
+from dsteleop.app.tasks.executor import Executor, TaskError
 from dsteleop.app.tune.objective import Objective
 from dsteleop.app.tune.space import Dimension, Value, as_values, parse_space
 from dsteleop.app.tune.trial import (
@@ -58,64 +59,6 @@ SAMPLERS: tuple[str, ...] = ("tpe", "grid", "random")
 STUDY_NAME = "dsteleop-tune"
 STORAGE_FILE = "study.journal"
 SETTINGS_SCHEMA = "dsteleop.tune_settings/1"
-
-
-class TaskError(Exception):
-    """A task raised, or its worker died; the message says what happened, in one line."""
-
-
-class Executor(Protocol):
-    """Where tasks run. `submit` returns a handle at once; `ready` waits up to `timeout_s` [s]
-    and returns the handles that are done; `result` returns a done task's value or raises
-    TaskError; `share` makes a value available to every task (a cluster's object store)."""
-
-    @property
-    def capacity(self) -> int: ...
-
-    def submit(self, fn: Callable[..., Any], *args: Any) -> Any: ...
-
-    def ready(self, handles: Sequence[Any], timeout_s: float) -> list[Any]: ...
-
-    def result(self, handle: Any) -> Any: ...
-
-    def share(self, value: Any) -> Any: ...
-
-
-class LocalExecutor:
-    """Runs every task at once in this process, one at a time (no cluster)."""
-
-    capacity = 1
-
-    def __init__(self) -> None:
-        self._done: dict[int, tuple[bool, Any]] = {}
-        self._next = 0
-
-    def submit(self, fn: Callable[..., Any], *args: Any) -> int:
-        handle = self._next
-        self._next += 1
-        try:
-            self._done[handle] = (True, fn(*args))
-        except Exception as exc:  # a trial that raises is a failed trial, as on a cluster
-            self._done[handle] = (False, describe_error(exc))
-        return handle
-
-    def ready(self, handles: Sequence[Any], timeout_s: float) -> list[Any]:
-        return list(handles)
-
-    def result(self, handle: Any) -> Any:
-        ok, value = self._done.pop(handle)
-        if not ok:
-            raise TaskError(value)
-        return value
-
-    def share(self, value: Any) -> Any:
-        return value
-
-
-def describe_error(exc: BaseException) -> str:
-    """An exception in one line: its type and the first line of its message."""
-    text = str(exc).strip().splitlines()
-    return f"{type(exc).__name__}: {text[0] if text else ''}".rstrip(": ")
 
 
 @dataclass(frozen=True)

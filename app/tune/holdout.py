@@ -24,7 +24,8 @@ from numpy.typing import NDArray
 
 from dsteleop.app.study.results import ModeResult, StudyResult, merge
 from dsteleop.app.study.summary import headline
-from dsteleop.app.tune.driver import Executor, TaskError, TuneSettings
+from dsteleop.app.tasks.executor import Executor, TaskError
+from dsteleop.app.tune.driver import TuneSettings
 from dsteleop.app.tune.trial import (
     StudyBatch,
     paired,

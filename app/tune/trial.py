@@ -31,6 +31,7 @@ from typing import Any
 
 from dsteleop.app.study.batch import run_chunk
 from dsteleop.app.study.grasps import Grasps
+from dsteleop.app.study.objects import Objects
 from dsteleop.app.study.planar import SimConfig
 from dsteleop.app.study.results import ChunkResult
 from dsteleop.app.study.summary import headline
@@ -85,7 +86,7 @@ class StudyBatch:
 World = tuple[tuple[str, Any], ...]
 
 #: `SimConfig` settings that are None in the default world, by the class they hold.
-OPTIONAL_DATACLASSES: dict[str, type] = {"grasps": Grasps}
+OPTIONAL_DATACLASSES: dict[str, type] = {"grasps": Grasps, "objects": Objects}
 
 
 def world_of(overrides: Mapping[str, Any]) -> World:

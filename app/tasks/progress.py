@@ -1,5 +1,5 @@
-"""A terminal progress bar the commands and the study share (beside `app/outpaths.py`: shared
-machinery lives in app/, not in app/cli, so the study and the sweep import no command)."""
+"""A terminal progress bar the commands, the study, the sweep and tuning share (shared machinery
+lives in app/tasks, not in app/cli, so the study and the sweep import no command)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,6 @@
-"""Trials as Ray tasks: the one module of dsteleop that imports Ray (used by `dsteleop tune`
-and its benchmark only).
+"""Tasks on a Ray cluster (`RayExecutor`, an `app.tasks.executor.Cluster`): the one module of
+dsteleop that imports Ray (used by `dsteleop tune`, `dsteleop sim --sweep` and their benchmarks
+only).
 
     address None       `ray.init()` starts a local cluster on this machine: `workers` CPUs
                        (default: every core), bound to the loopback interface, with a
@@ -32,7 +33,7 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from dsteleop.app.tune.driver import TaskError, describe_error
+from dsteleop.app.tasks.executor import TaskError, describe_error
 from dsteleop.errors import ConfigError, InputError
 
 log = logging.getLogger(__name__)

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from dsteleop.app.cli.options import LoopOptions
+from dsteleop.app.compose.options import LoopOptions
 from dsteleop.app.inputs.demo import DemoCamera, DemoConfig, DemoOperator, demo_source
 from dsteleop.app.inputs.tracked import TrackedHandInput
 from dsteleop.app.loop import TeleopLoop
@@ -81,6 +81,12 @@ class Built:
                     self.rerun.close()
 
 
+def hand_mapping(fields: dict[str, Any]) -> MappingConfig | None:
+    """The hand's workspace mapping from its fields (`HandInput.mapping_config`, the
+    dataclass's own fields); None for a source without one (what a viewer shows)."""
+    return MappingConfig(**fields) if fields else None
+
+
 def resolve_source(spec: SourceSpec) -> SourceSpec:
     """`auto` -> the first camera that opens, or `demo` (with a line saying so)."""
     if spec.kind != "auto":
@@ -112,19 +118,13 @@ def build(
         mapping: camera -> robot mapping (default `MappingConfig()`).
     """
     spec = resolve_source(options.source)
-    from dsteleop.app.link.config import link_config_path, read_link_config
-    from dsteleop.robot.description import load_description
-
-    link = link_config_path(options.robot)
-    if link is not None:
-        link_config, desc = read_link_config(link).for_robot()
-        if abs(link_config.rate_hz * options.loop.dt_s - 1.0) > 1e-6:
-            raise ConfigError(
-                f"--robot zenoh:{link}: the link's rate_hz {link_config.rate_hz:g} is not the "
-                f"loop's rate {1.0 / options.loop.dt_s:g} Hz (the twin keeps the loop's time)"
-            )
-    else:
-        desc = load_description(options.robot)
+    desc = options.robot.description
+    link_config = options.robot.link
+    if link_config is not None and abs(link_config.rate_hz * options.loop.dt_s - 1.0) > 1e-6:
+        raise ConfigError(
+            f"--robot {options.robot}: the link's rate_hz {link_config.rate_hz:g} is not the "
+            f"loop's rate {1.0 / options.loop.dt_s:g} Hz (the twin keeps the loop's time)"
+        )
     # The hand's fingers drive the robot's: the table comes with the robot's description.
     mapping = dataclasses.replace(
         mapping or MappingConfig(), robot_fingers=tuple((f.name, f.human) for f in desc.fingers)
@@ -156,7 +156,7 @@ def build(
     }
     robot: Robot
     task: Task
-    if link is None:
+    if link_config is None:
         robot, task = simulated_kitchen(desc, **task_options)
     else:
         # The arm at the far end of the link; the task judges it through its twin here
@@ -169,7 +169,11 @@ def build(
         except BaseException:
             task.close()
             raise
-        log.info("robot: %s at the far end of %s, judged through its twin", desc.name, link)
+        log.info(
+            "robot: %s at the far end of %s, judged through its twin",
+            desc.name,
+            options.robot.link_file,
+        )
     rerun: Any = None
     dataset: Any = None
     try:
