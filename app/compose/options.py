@@ -9,11 +9,10 @@ from typing import Any
 
 from dsteleop.app.link.config import LinkConfig, link_config_path, read_link_config
 from dsteleop.app.loop import LoopConfig
-from dsteleop.app.plants.kitchen import INFER
 from dsteleop.app.rrd.target import RerunTarget
 from dsteleop.errors import ConfigError
 from dsteleop.robot.description import RobotDescription, load_description
-from dsteleop.robot.world import UTENSIL_NAMES
+from dsteleop.robot.task import INFER
 from dsteleop.tracking.sources import SourceSpec, parse_source
 
 #: A live session (`serve`) resets the task this long after each outcome, for the next
@@ -152,6 +151,8 @@ def resolve_goal(goal: str | None, utensil: str | None) -> tuple[str, str]:
         ConfigError: an unknown utensil or candidate, or a told goal that is not the
             person's utensil (one line).
     """
+    from dsteleop.robot.world import UTENSIL_NAMES  # PyBullet's world: not for --help
+
     if utensil is not None and utensil not in UTENSIL_NAMES:
         raise ConfigError(
             f"--utensil: unknown utensil {utensil!r} (choose from {', '.join(UTENSIL_NAMES)})"
@@ -177,6 +178,8 @@ def check_change_mind(change: tuple[str, float], source: str, goal: str, utensil
     Raises:
         ConfigError: one line saying which and why.
     """
+    from dsteleop.robot.world import UTENSIL_NAMES
+
     name, at = change
     if source != "demo":
         raise ConfigError("--change-mind: only the demo person changes its mind (--source demo)")

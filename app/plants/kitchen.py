@@ -43,11 +43,8 @@ from dsteleop.robot.description import RobotDescription, load_description
 from dsteleop.robot.env import EnvConfig, KitchenEnv
 from dsteleop.robot.perception import PerceptionError
 from dsteleop.robot.scene import SceneGeometry
-from dsteleop.robot.task import Candidates, Phase
+from dsteleop.robot.task import INFER, Candidates, Phase
 from dsteleop.robot.world import UTENSIL_NAMES
-
-#: The goal of a robot that is not told its utensil (`--goal infer`, the page's menu).
-INFER = "infer"
 
 
 class KitchenTask:
