@@ -17,6 +17,10 @@ module and never the loop, and the loop cannot tell implementations apart:
     Observer    anyone who sees the ticks: the browser view, the demo operator's eyes, a
                 recorder, a test; called once per tick from the loop's thread, and must not
                 block (a one-slot mailbox, `loop.broadcast`, decouples slow observers)
+    Output      where a run writes what happened, beside the session the loop records: the
+                camera's video, a LeRobot dataset, a Rerun recording (app/outputs/, each a
+                plug-in in a registry); an observer that is also told when a session starts
+                and stops and when each recorded episode ends
 
 The data that crosses them is typed here too: `HumanInput` (a mapped hand sample),
 `RobotState` and `RobotLimits` (the robot's measured state and its limits), `TaskStep` (the
@@ -44,7 +48,11 @@ from dsteleop.robot.task import Candidates, EventKind, Outcome, Phase, TaskEvent
 from dsteleop.tracking.types import HandSample
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
+    from dsteleop.app.session.episodes import Episode
     from dsteleop.app.session.schema import TickRecord
+    from dsteleop.tracking.sources import FrameSource
 
 
 NO_HAND = "no hand"
@@ -367,3 +375,40 @@ class Observer(Protocol):
     """Sees every tick; called from the loop's thread, must return at once."""
 
     def observe(self, record: TickRecord) -> None: ...
+
+
+class Output(Observer, Protocol):
+    """Where a run writes what happened (module docstring; `outputs.OutputBase` does nothing
+    in every hook, so an output writes only the hooks it needs). The loop calls `observe`
+    each tick after its own recording (from its thread: must not block), `start_session` and
+    `stop_session` around each session it records, and `episode` as each recorded episode's
+    ticks are written (from the recorder's thread). The composition calls `wrap_source`
+    before the hand is built, `close` after the loop is closed, and `summary` for the
+    command's summary line."""
+
+    def wrap_source(self, source: FrameSource) -> FrameSource:
+        """The hand's frames pass through the returned source (the video records them)."""
+        ...
+
+    def start_session(self, folder: Path) -> None:
+        """A session starts recording into `folder` (a new session folder)."""
+        ...
+
+    def stop_session(self) -> None:
+        """The session is closing: finish what is written beside it (its last episode may
+        still follow, on the recorder's thread)."""
+        ...
+
+    def episode(
+        self, folder: Path, meta: dict[str, Any], episode: Episode, ticks: tuple[TickRecord, ...]
+    ) -> None:
+        """An episode ended and its ticks are in the session (`session.writer.EpisodeSink`)."""
+        ...
+
+    def summary(self) -> dict[str, Any] | None:
+        """What it wrote, for the command's summary (None: nothing to say)."""
+        ...
+
+    def close(self) -> None:
+        """Write what is left and release it (after the loop is closed)."""
+        ...

@@ -64,9 +64,10 @@ it is tabulated once (K x K x D per row of candidates) and a tick's confidence i
 and a weighted sum.
 
 Batching: the belief is (n, K), one row per arbitrated row; the candidates are shared by
-every row (a batch (K,)) or one set per row (a batch (n, K)). Everything is numpy (K is a
-handful; one tick over 3 candidates is tens of microseconds, `dsteleop bench --only
-arbitration`).
+every row (a batch (K,)) or one set per row (a batch (n, K)). The cost-to-go, Bayes' rule with
+the floor, and the confidence are compiled loops over the rows (`arbitration/jit.py`), the
+tables numpy at construction (one tick over 3 candidates for one row is tens of microseconds,
+`dsteleop bench --only arbitration`; the study steps thousands of rows at once).
 """
 
 from __future__ import annotations
@@ -206,7 +207,9 @@ class GoalBelief:
         object.__setattr__(self, "_flat_goals", flat)
         extra = np.ascontiguousarray(((sigma / self.scale) ** 2).sum(-1))
         object.__setattr__(self, "_sigma2_over_s2_sum", extra)
-        object.__setattr__(self, "_table", _agreement(goals, sigma, self.scale))
+        table = np.ascontiguousarray(_agreement(goals, sigma, self.scale))
+        object.__setattr__(self, "_table", table)
+        object.__setattr__(self, "_joint_table", np.ascontiguousarray(table.prod(axis=3)))
 
     @property
     def K(self) -> int:
@@ -237,8 +240,9 @@ class GoalBelief:
 
     def initial(self, n: int) -> Array:
         """(n, K) the belief before any motion: the prior, floored."""
-        prior = np.broadcast_to(self.__dict__["_prior"], (n, self.K))
-        return self._floor(prior)
+        prior = np.array(np.broadcast_to(self.__dict__["_prior"], (n, self.K)), dtype=np.float64)
+        zero = np.zeros((n, self.K))
+        return _update(prior, zero, zero, 0.0, float(self.params.epsilon))
 
     def cost_to_go(self, X: HandState) -> Array:
         """(n, K) V_g(x) of the module docstring, for the states X of batch (n,)."""
@@ -254,26 +258,20 @@ class GoalBelief:
     def update(self, belief: Array, X_human: HandState, X_human_prev: HandState) -> Array:
         """One tick of Bayes' rule and the floor (module docstring): the new (n, K) belief
         after the person moved from X_human_prev to X_human (batch (n,) each)."""
-        b = np.asarray(belief, dtype=np.float64)
+        b = np.ascontiguousarray(belief, dtype=np.float64)
         if b.ndim != 2 or b.shape[1] != self.K:
             raise ConfigError(f"belief of shape {b.shape} for {self.K} candidates")
-        step = self.cost_to_go(X_human) - self.cost_to_go(X_human_prev)
-        log_b = np.log(b) - self.params.beta * step
-        log_b -= log_b.max(axis=1, keepdims=True)
-        post = np.exp(log_b)
-        post /= post.sum(axis=1, keepdims=True)
-        return self._floor(post)
+        now, before = self.cost_to_go(X_human), self.cost_to_go(X_human_prev)
+        return _update(b, now, before, float(self.params.beta), float(self.params.epsilon))
 
     def confidence(self, belief: Array) -> Confidence:
         """The MAP candidate, c_i and c_joint of each row (module docstring)."""
-        b = np.asarray(belief, dtype=np.float64)
-        m = np.argmax(b, axis=1)
-        table = self.agreement
-        rows = np.arange(b.shape[0]) if table.shape[0] > 1 else np.zeros(b.shape[0], np.intp)
-        W = table[rows, m]  # (n, K, D): W_m,g,i of each row's MAP m
-        per_dim = np.einsum("nk,nkd->nd", b, W)
-        joint = np.einsum("nk,nk->n", b, W.prod(axis=2))
-        return Confidence(m, np.clip(per_dim, 0.0, 1.0), np.clip(joint, 0.0, 1.0))
+        b = np.ascontiguousarray(belief, dtype=np.float64)
+        table: Array = self.__dict__["_table"]
+        if table.shape[0] not in (1, b.shape[0]):
+            raise ConfigError(f"belief over {table.shape[0]} rows given {b.shape[0]} beliefs")
+        m, per_dim, joint = _confidence(b, table, self.__dict__["_joint_table"])
+        return Confidence(m, per_dim, joint)
 
     def goal_of(self, index: NDArray[np.intp]) -> HandState:
         """The poses (batch (n,)) of candidate `index[r]` for each row r: the robot's X_goal."""
@@ -283,22 +281,6 @@ class GoalBelief:
         return HandState(
             goals.position[rows, idx], goals.rotation[rows, idx], goals.openness[rows, idx]
         )
-
-    def _floor(self, b: Array) -> Array:
-        """Every b_g >= eps, the others keeping their ratios (module docstring); a belief that
-        already satisfies it is unchanged (no drift without evidence)."""
-        eps = self.params.epsilon
-        out = np.asarray(b, dtype=np.float64)
-        low = np.zeros(out.shape, dtype=bool)
-        for _ in range(self.K):  # each pass floors at least one more goal, or ends
-            now = low | (out < eps)
-            if (now == low).all():
-                break
-            low = now
-            rest = np.where(low, 0.0, out)
-            share = (1.0 - eps * low.sum(axis=1, keepdims=True)) / rest.sum(axis=1, keepdims=True)
-            out = np.where(low, eps, rest * share)
-        return out
 
 
 @kernel
@@ -334,6 +316,77 @@ def commanded(X_robot: HandState, X_human: HandState, X_human_prev: HandState) -
     X_human_prev) (eq (2)'s integration of the hand's motion, from the robot's state): the x'
     of the belief's update read at the robot's state, x = X_robot (module docstring)."""
     return integrate(X_robot, diff(X_human, X_human_prev), 1.0)
+
+
+@kernel
+def _update(b: Array, now: Array, before: Array, beta: float, eps: float) -> Array:
+    """(n, K) Bayes' rule and the floor of the module docstring for each row: b_g exp(-beta
+    (now_g - before_g)) normalised (from the largest log, for range), then every b_g < eps
+    set to eps and the others rescaled to keep their ratios, repeated until none is below
+    (at most K passes; a row that needs none is left as it is)."""
+    n, K = b.shape
+    out = np.empty((n, K))
+    low = np.empty(K, dtype=np.bool_)
+    for r in range(n):
+        top = -np.inf
+        for k in range(K):
+            out[r, k] = math.log(b[r, k]) - beta * (now[r, k] - before[r, k])
+            top = max(top, out[r, k])
+        total = 0.0
+        for k in range(K):
+            out[r, k] = math.exp(out[r, k] - top)
+            total += out[r, k]
+        for k in range(K):
+            out[r, k] /= total
+            low[k] = False
+        for _ in range(K):  # each pass floors at least one more goal, or ends
+            more = False
+            for k in range(K):
+                if not low[k] and out[r, k] < eps:
+                    low[k] = more = True
+            if not more:
+                break
+            n_low, rest = 0, 0.0
+            for k in range(K):
+                if low[k]:
+                    n_low += 1
+                else:
+                    rest += out[r, k]
+            share = (1.0 - eps * n_low) / rest
+            for k in range(K):
+                out[r, k] = eps if low[k] else out[r, k] * share
+    return out
+
+
+@kernel
+def _confidence(
+    b: Array, table: Array, joint_table: Array
+) -> tuple[NDArray[np.intp], Array, Array]:
+    """Each row's MAP m (the first largest), c_i = sum_g b_g W_m,g,i and c_joint = sum_g b_g
+    prod_i W_m,g,i (clipped to [0, 1]) from the tables W (rows, K, K, D) and prod_i W (rows,
+    K, K), rows = 1 (shared) or n."""
+    n, K = b.shape
+    D = table.shape[3]
+    m_out = np.empty(n, dtype=np.intp)
+    per_dim = np.zeros((n, D))
+    joint = np.zeros(n)
+    for r in range(n):
+        t = 0 if table.shape[0] == 1 else r
+        m = 0
+        for k in range(1, K):
+            if b[r, k] > b[r, m]:
+                m = k
+        m_out[r] = m
+        c_joint = 0.0
+        for g in range(K):
+            w = b[r, g]
+            c_joint += w * joint_table[t, m, g]
+            for i in range(D):
+                per_dim[r, i] += w * table[t, m, g, i]
+        joint[r] = min(1.0, max(0.0, c_joint))
+        for i in range(D):
+            per_dim[r, i] = min(1.0, max(0.0, per_dim[r, i]))
+    return m_out, per_dim, joint
 
 
 def _with_rows(X: HandState) -> HandState:

@@ -93,8 +93,8 @@ def test_the_floor_holds_whatever_the_evidence() -> None:
     assert lowest >= 0.01 - 1e-12 and lowest == pytest.approx(0.01)
 
 
-def _demo(**options: Any) -> tuple[list[TickRecord], Any]:
-    """One headless demo run (`dsteleop run --source demo ...`); its records and its demo."""
+def _demo(**options: Any) -> list[TickRecord]:
+    """One headless demo run (`dsteleop run --source demo ...`); its records."""
     records: list[TickRecord] = []
 
     class Keep:
@@ -106,14 +106,14 @@ def _demo(**options: Any) -> tuple[list[TickRecord], Any]:
         built.loop.run_headless(60 * 30)
     finally:
         built.close()
-    return records, built.demo
+    return records
 
 
 def test_a_robot_not_told_its_utensil_keeps_a_belief_in_the_loop() -> None:
     """The wiring: each tick's record holds the belief over the utensils, then the bin; the
     goal the robot sought is the MAP candidate's; no probability below the floor; the
     utensil grasped is the task's, and the robot was never told it."""
-    records, _ = _demo(goal="infer", utensil="spatula", seed=1)
+    records = _demo(goal="infer", utensil="spatula", seed=1)
     beliefs = [r.belief for r in records if r.belief is not None]
     assert len(beliefs) >= len(records) - 1
     eps = ArbitrationConfig().belief.epsilon
@@ -145,7 +145,7 @@ def test_the_belief_finds_the_persons_utensil_in_the_demo_at_a_stated_rate() -> 
     runs = []
     for seed in range(9):
         utensil = UTENSILS[seed % 3]
-        records, _ = _demo(goal="infer", utensil=utensil, seed=seed)
+        records = _demo(goal="infer", utensil=utensil, seed=seed)
         runs.append((records, utensil))
     assert _rate(runs) >= 7
 

@@ -427,7 +427,7 @@ from dsteleop.arbitration import Mode
 
 out = Path(sys.argv[1])
 options = LoopOptions.of(
-    "demo", LoopConfig(mode=Mode.DS, reset_after_s=0.5), time_limit_s=2.0, record_lerobot=out
+    "demo", LoopConfig(mode=Mode.DS, reset_after_s=0.5), time_limit_s=2.0, outputs={"lerobot": out}
 )
 built = build(options, realtime=False)
 loop = built.loop

@@ -29,10 +29,11 @@ from dsteleop.app.session.schema import (
     encode_event,
 )
 from dsteleop.app.session.writer import META, TICKS, Recorder, SessionWriter
+from dsteleop.app.sources import parse as parse_source
 from dsteleop.arbitration import STEP_ARRAYS, ArbitrationStep, HandState, Mode, dim_names
 from dsteleop.errors import ConfigError, InputError
 from dsteleop.robot.task import EventKind, Outcome, Phase, TaskEvent
-from dsteleop.tracking.sources import SourceSpec, parse_source
+from dsteleop.tracking.sources import SourceSpec
 from dsteleop.tracking.types import HandSample
 
 CLI = [sys.executable, "-m", "dsteleop.app.cli.main"]

@@ -170,10 +170,10 @@ def test_open_source_dispatch(tmp_path: Path) -> None:
     with pytest.raises(DsteleopError, match="not found") as excinfo:
         open_source(str(tmp_path / "nope.mp4"))
     assert "nope.mp4" in one_line_error(excinfo)
-    # demo and auto are the app's to resolve, not tracking sources.
+    # demo and auto are the app's sources (app.sources), not tracking's.
     for kind in ("demo", "auto"):
         with pytest.raises(DsteleopError, match="not a tracking source"):
-            open_source(kind)
+            open_source(SourceSpec(kind))
 
 
 def test_tracker_on_synthetic_landmarks_filters_towards_the_truth() -> None:

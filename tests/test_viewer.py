@@ -234,8 +234,8 @@ def test_status_shows_the_recording_with_its_time_and_episodes(
 
 def test_status_names_the_source(records: list[TickRecord]) -> None:
     """Issue 23, item 5: the page says what drives the hand (the demo is no camera)."""
+    from dsteleop.app.sources import parse as parse_source
     from dsteleop.app.viewer.panel import source_label, status_html
-    from dsteleop.tracking.sources import parse_source
 
     assert source_label(parse_source("demo")) == "demo"
     assert source_label(parse_source("webcam:1")) == "camera 1"

@@ -22,7 +22,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -453,9 +453,10 @@ class ImageFolderSource:
         return None
 
 
-SourceKind = Literal["demo", "auto", "webcam", "video", "images", "synthetic"]
+#: The tracking package's sources: webcam, video, images, synthetic (the app adds its own,
+#: `app.sources`: the demo, auto).
 SOURCE_GRAMMAR = (
-    "demo, auto, webcam:N (or webcam:/dev/videoN, or N), video:PATH (or a video file), "
+    "webcam:N (or webcam:/dev/videoN, or N), video:PATH (or a video file), "
     "images:DIR (or a folder of images), or synthetic"
 )
 
@@ -465,41 +466,41 @@ class SourceSpec:
     """A parsed `--source` (the one grammar of every command that reads a hand).
 
     Attributes:
-        kind: `demo` (the app's built-in demo operator), `auto` (a webcam if one opens,
-            else the demo), `webcam`, `video`, `images` (a folder of stills), `synthetic`
-            (the scripted synthetic hand).
+        kind: `webcam`, `video`, `images` (a folder of stills), `synthetic` (the scripted
+            synthetic hand), or a source the app registers (`app.sources`: the demo, auto).
         target: the camera index or device path, or the file or folder path; "" otherwise.
     """
 
-    kind: SourceKind
+    kind: str
     target: str = ""
 
     def __str__(self) -> str:
         return f"{self.kind}:{self.target}" if self.target else self.kind
 
 
-def parse_source(text: str) -> SourceSpec:
-    """Parse a `--source` value (`SOURCE_GRAMMAR`); a bare path or index is told by its type.
+def parse_source(text: str, grammar: str = SOURCE_GRAMMAR) -> SourceSpec:
+    """Parse a tracking `--source` value (`SOURCE_GRAMMAR`); a bare path or index is told by
+    its type. `grammar` is the grammar the errors cite (the app's has more sources).
 
     Raises:
         ConfigError: an unknown kind, or a kind without its target.
     """
     text = str(text).strip()
     if not text:
-        raise ConfigError(f"--source is empty ({SOURCE_GRAMMAR})")
-    if text in ("demo", "auto", "synthetic"):
-        return SourceSpec(text)  # type: ignore[arg-type]
+        raise ConfigError(f"--source is empty ({grammar})")
+    if text == "synthetic":
+        return SourceSpec(text)
     if text in ("webcam", "video", "images"):
-        raise ConfigError(f"--source {text}: needs a target, e.g. {text}:... ({SOURCE_GRAMMAR})")
+        raise ConfigError(f"--source {text}: needs a target, e.g. {text}:... ({grammar})")
     kind, sep, target = text.partition(":")
     if sep and kind in ("webcam", "video", "images"):
         if not target:
-            raise ConfigError(f"--source {kind}: needs a target ({SOURCE_GRAMMAR})")
-        return SourceSpec(kind, target)  # type: ignore[arg-type]
-    if sep and kind in ("demo", "auto", "synthetic"):
+            raise ConfigError(f"--source {kind}: needs a target ({grammar})")
+        return SourceSpec(kind, target)
+    if sep and kind == "synthetic":
         raise ConfigError(f"--source {kind} takes no target, got {text!r}")
     if sep and len(kind) > 1 and not Path(text).exists():
-        raise ConfigError(f"unknown source kind {kind!r} in {text!r} ({SOURCE_GRAMMAR})")
+        raise ConfigError(f"unknown source kind {kind!r} in {text!r} ({grammar})")
     if text.isdigit() or text.startswith("/dev/video"):
         return SourceSpec("webcam", text)
     if Path(text).is_dir():
@@ -517,8 +518,8 @@ def open_source(
     rotate: int | None = None,
     loop: bool = False,
 ) -> FrameSource:
-    """Build (not open) the frame source of a `--source` (any kind but demo and auto, which
-    the app resolves: the demo operator is not a tracking source).
+    """Build (not open) the frame source of a tracking `--source` (`TRACKING_KINDS`; the
+    app's own sources, the demo and auto, are `app.sources`').
 
     Args:
         spec: the source, parsed or as text.
@@ -532,7 +533,7 @@ def open_source(
 
     Raises:
         InputError: a file or folder that does not exist.
-        ConfigError: demo or auto, which are not tracking sources.
+        ConfigError: a kind that is not a tracking source.
     """
     spec = parse_source(spec) if isinstance(spec, str) else spec
     if spec.kind == "synthetic":

@@ -42,6 +42,8 @@ from dsteleop.app.bench import data_dir
 from dsteleop.app.inputs.tracked import TrackedHandInput
 from dsteleop.app.loop import LoopConfig, TeleopLoop
 from dsteleop.app.loop.timing import raise_priority
+from dsteleop.app.outputs.rerun import RerunOutput
+from dsteleop.app.outputs.video import VideoOutput
 from dsteleop.app.plants.kitchen import simulated_kitchen
 from dsteleop.app.rrd.target import RerunTarget
 from dsteleop.app.session.video import FrameRecorder
@@ -95,17 +97,23 @@ def _one(
     if video is None:
         from dsteleop.app.compose import LoopOptions, build
 
-        built = build(LoopOptions.of("demo", LoopConfig(mode=Mode.DS), rerun=rerun), realtime=True)
+        asked = {} if rerun is None else {"rerun": rerun}
+        built = build(
+            LoopOptions.of("demo", LoopConfig(mode=Mode.DS), outputs=asked), realtime=True
+        )
         built.loop.follow_frames = follow
         result = _measure(built.loop, seconds, "demo (synthetic operator, no pixels)", folder)
-        if built.rerun is not None:
-            result["rerun"] = _rerun_stats(built.rerun, rerun)
+        out = built.outputs.get("rerun")
+        if isinstance(out, RerunOutput) and rerun is not None:
+            result["rerun"] = _rerun_stats(out.logger, rerun)
         return result
     robot, task = simulated_kitchen(utensil="spoon", seed=0, export_scene=rerun is not None)
     source: FrameSource = VideoFileSource(video, realtime=True, loop=True)
-    frames = FrameRecorder(source) if record else None
+    recorded = VideoOutput() if record else None  # the frames into each session
+    if recorded is not None:
+        source = recorded.wrap_source(source)
     detector = _TimedDetector(make_detector(DetectorConfig()))
-    stream = TrackingStream(frames or source, HandTracker(detector=detector))
+    stream = TrackingStream(source, HandTracker(detector=detector))
     hand = TrackedHandInput.from_stream(stream.open(), WorkspaceMapping())
     logger: Any = None
     if rerun is not None:
@@ -118,11 +126,12 @@ def _one(
         hand,
         robot,
         task,
-        frame_recorder=frames,
+        outputs=() if recorded is None else (recorded,),
         observers=() if logger is None else (logger,),
         follow_frames=follow,
     )
     what = f"video {video.name} (looping, MediaPipe full model)"
+    frames = None if recorded is None else recorded.recorder
     result = _measure(loop, seconds, what, folder, frames, detector=detector)
     if logger is not None:
         result["rerun"] = _rerun_stats(logger, rerun)

@@ -9,8 +9,9 @@
                          world options choose its world); --param applies on top of it
     loop options         --source, --mode, --goal, --utensil, --change-mind, --seed, --goal-noise,
                          --input-delay,
-                         --rate, --lost-policy, --history, --record, --record-video,
-                         --rerun, --rerun-connect: run and serve
+                         --rate, --lost-policy, --history, --record, and every output's own
+                         (app/outputs: --record-video, --record-lerobot, --rerun,
+                         --rerun-connect): run and serve
 
 Values are checked here, so a bad one is one line naming it (exit 2) before anything opens.
 Bounds that are not the loop's own domain, and why:
@@ -39,18 +40,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from dsteleop.app import outputs, sources
 from dsteleop.app.compose.options import LoopOptions, RobotSpec
 from dsteleop.app.loop import LoopConfig, LostPolicy
 from dsteleop.app.outpaths import check_output_file, output_dir, output_file
-from dsteleop.app.rrd.target import DEFAULT_ADDR, RerunTarget
 from dsteleop.arbitration import ArbitrationConfig, Mode, registered
 from dsteleop.errors import ConfigError, InputError
 from dsteleop.tracking.sources import (
     ROTATIONS_DEG,
-    SOURCE_GRAMMAR,
     VideoFileSource,
     check_rotation,
-    parse_source,
 )
 
 log = logging.getLogger(__name__)
@@ -224,7 +223,7 @@ def add_loop_options(
     parser: argparse.ArgumentParser, default_source: str, record_help: str
 ) -> None:
     """Options shared by `run` and `serve` (`record_help`: what `--record DIR` means there)."""
-    parser.add_argument("--source", default=default_source, help=f"{SOURCE_GRAMMAR}")
+    parser.add_argument("--source", default=default_source, help=sources.grammar())
     parser.add_argument(
         "--mode",
         default=None,
@@ -312,41 +311,13 @@ def add_loop_options(
         "segment appended to it (default: none, an empty history, so a run depends only on "
         "its options and seed)",
     )
-    parser.add_argument("--record", type=output_dir, default=None, metavar="DIR", help=record_help)
-    parser.add_argument(
-        "--record-video",
-        action="store_true",
-        help="also record the camera frames (for replay --retrack)",
-    )
-    parser.add_argument(
-        "--record-lerobot",
-        type=output_dir,
-        default=None,
-        metavar="DIR",
-        help="also write the recorded episodes as a LeRobot v3.0 dataset into the new or empty "
-        "folder DIR, each as it ends (docs/datasets.md); implies --record-video for a camera "
-        "or video source",
-    )
     parser.add_argument(
         "--loop-video",
         action="store_true",
         help="play a video source again from the start when it ends",
     )
-    parser.add_argument(
-        "--rerun",
-        type=output_file,
-        default=None,
-        metavar="FILE.rrd",
-        help="write a Rerun recording while running (open with: rerun FILE.rrd)",
-    )
-    parser.add_argument(
-        "--rerun-connect",
-        nargs="?",
-        const=DEFAULT_ADDR,
-        default=None,
-        metavar="ADDR",
-        help=f"stream to a Rerun viewer you started (default {DEFAULT_ADDR})",
-    )
+    parser.add_argument("--record", type=output_dir, default=None, metavar="DIR", help=record_help)
+    outputs.add_arguments(parser)  # every registered output's options (app/outputs)
     add_video_options(parser)
     add_config_options(parser)
 
@@ -376,18 +347,12 @@ def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOp
     check_loop_bounds(loop.rate_hz, args.goal_noise, loop.input_delay_s)
     if args.seed < 0:
         raise ConfigError(f"--seed must be >= 0, got {args.seed}")
-    source = parse_source(args.source)
-    if args.record_video and source.kind == "demo":
-        raise ConfigError(
-            "--record-video: the demo has no camera frames to record (its synthetic hand has "
-            "no pixels); record a webcam or a video source, or leave --record-video out"
-        )
+    source = sources.parse(args.source)
     history = check_history_path(args.history)
     robot = check_robot(args.robot)
-    if args.record_lerobot is not None:
-        from dsteleop.app.lerobot import check_out_dir
-
-        check_out_dir(args.record_lerobot)  # before a camera or the robot is opened
+    # Each output's settings, checked before a camera or the robot is opened; an output that
+    # reads the camera's frames (a dataset) has them recorded when the source has any.
+    asked = outputs.parse(args, source, pixels=sources.kind(source.kind).pixels)
     return LoopOptions(
         source=source,
         loop=loop,
@@ -398,19 +363,11 @@ def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOp
         seed=args.seed,
         goal_noise_m=args.goal_noise,
         record=args.record,
-        # A dataset from a camera carries its frames: --record-lerobot records them.
-        record_video=bool(args.record_video)
-        or (args.record_lerobot is not None and source.kind != "demo"),
-        record_lerobot=args.record_lerobot,
+        outputs=asked,
         loop_video=bool(args.loop_video),
         rotate=check_rotation(args.rotate),
         allow_partial=bool(args.allow_partial),
         time_limit_s=limit,
-        rerun=(
-            None
-            if args.rerun is None and args.rerun_connect is None
-            else RerunTarget(args.rerun, args.rerun_connect)
-        ),
         history=history,
         input_delay_given=args.input_delay is not None or "input_delay_s" in config.loop_fields,
     )

@@ -29,9 +29,11 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+from dsteleop.app import sources
 from dsteleop.app.cli.options import add_loop_options, check_video_complete, loop_options
 from dsteleop.app.cli.signals import StopOnSignal
 from dsteleop.app.compose.options import LoopOptions
+from dsteleop.app.outputs import session_root
 from dsteleop.errors import ConfigError, RobotLostError
 
 log = logging.getLogger(__name__)
@@ -93,7 +95,7 @@ def command(args: argparse.Namespace) -> RunCommand:
         raise ConfigError(f"--max-seconds must be > 0, got {args.max_seconds}")
     if not (math.isfinite(args.robot_lost_s) and args.robot_lost_s > 0):
         raise ConfigError(f"--robot-lost-s must be > 0 seconds, got {args.robot_lost_s}")
-    live = options.source.kind in ("webcam", "auto")
+    live = sources.kind(options.source.kind).live  # a camera: only in real time
     linked = options.robot.linked
     # A linked robot's physics keeps its own clock: the loop runs in real time.
     return RunCommand(
@@ -122,11 +124,10 @@ def run(args: argparse.Namespace) -> int:
     with StopOnSignal(loop, (signal.SIGTERM,)) as stopper:
         try:
             session = opts.record
-            if session is None and opts.record_lerobot is not None:
-                from dsteleop.app.lerobot import SESSIONS
+            root = session_root(opts.outputs)  # an output that needs sessions (a dataset)
+            if session is None and root is not None:
                 from dsteleop.app.session.writer import new_session_folder
 
-                root = opts.record_lerobot / SESSIONS
                 session = new_session_folder(root, loop.mode.value, opts.utensil)
             if session is not None:
                 loop.start_recording(session, {"command": "run", "argv": sys.argv[1:]})
@@ -175,10 +176,7 @@ def run(args: argparse.Namespace) -> int:
         summary["robot_lost_ticks"] = loop.robot_lost_ticks
         # stray messages the near end dropped on the state topics (ZenohRobot.dropped)
         summary["dropped_stray"] = getattr(loop.robot, "dropped", {})
-    if built.rerun is not None:
-        summary["rerun"] = built.rerun.summary()
-    if built.dataset is not None:
-        summary["lerobot"] = built.dataset.summary()
+    summary.update(built.summaries())  # what each output wrote, by its name
     json.dump(summary, sys.stdout)
     sys.stdout.write("\n")
     if loop.robot_lost_end and not stopper.received:

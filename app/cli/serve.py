@@ -35,9 +35,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from dsteleop.app import sources
 from dsteleop.app.cli.options import add_loop_options, check_video_complete, loop_options
 from dsteleop.app.cli.signals import StopOnSignal
 from dsteleop.app.compose.options import RESET_AFTER_S, LoopOptions
+from dsteleop.app.outputs import session_root
 from dsteleop.errors import ConfigError
 
 log = logging.getLogger(__name__)
@@ -115,14 +117,16 @@ def run(args: argparse.Namespace) -> int:
         )
     check_port_free(cmd.host, cmd.port)  # before the camera is opened
     raise_priority()  # the loop ahead of other work on the machine (a local browser)
-    root = opts.record or default_record_root()
-    if opts.record is None and opts.record_lerobot is not None:
-        from dsteleop.app.lerobot import SESSIONS
-
-        root = opts.record_lerobot / SESSIONS  # the sessions behind the dataset
+    # Sessions go under --record; else where an output that needs them says (a dataset's
+    # sessions), recorded from the start; else the page's recordings go to the data folder.
+    needed = session_root(opts.outputs)
+    root = opts.record or needed or default_record_root()
     built = build(opts, realtime=True, export_scene=True, record_root=root)
     loop, spec = built.loop, built.source
     plant = loop.task.describe()
+    info = sources.kind(spec.kind).info()
+    if info is not None and opts.change_mind is not None:
+        info = {**info, "person": "turns to the {} after {:g} s".format(*opts.change_mind)}
     viewer = None
     # Signals stop the loop from here on, also while closing: a second Ctrl-C during the
     # cleanup must not cut the recording's close short.
@@ -141,9 +145,9 @@ def run(args: argparse.Namespace) -> int:
                 arbitration=loop.config.arbitration,
                 source=source_label(spec),
                 mapping=hand_mapping(loop.hand.mapping_config()),
-                info=({"world": built.demo.config.describe()} if built.demo is not None else None),
+                info=info,
             )
-            if opts.record is not None or opts.record_lerobot is not None:
+            if opts.record is not None or needed is not None:
                 utensil = str(loop.task.describe().get("utensil", "task"))
                 loop.start_recording(new_session_folder(root, loop.mode.value, utensil))
             viewer.start()
@@ -169,10 +173,7 @@ def run(args: argparse.Namespace) -> int:
         "operator_stops": loop.stops,
         "ended_stopped": loop.stopped,
     }
-    if built.rerun is not None:
-        summary["rerun"] = built.rerun.summary()
-    if built.dataset is not None:
-        summary["lerobot"] = built.dataset.summary()
+    summary.update(built.summaries())  # what each output wrote, by its name
     if built.video is not None:
         summary["video"] = built.video.end_note() if built.video.ended else "playing"
     sys.stdout.write(json.dumps(summary) + "\n")

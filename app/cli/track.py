@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from dsteleop.app import sources
 from dsteleop.app.cli.options import add_video_options, check_video_complete
 from dsteleop.app.outpaths import output_file
 from dsteleop.arbitration.se3 import so3_log
@@ -45,7 +46,6 @@ from dsteleop.tracking.sources import (
     VideoFileSource,
     check_rotation,
     open_source,
-    parse_source,
 )
 from dsteleop.tracking.types import HandSample
 
@@ -72,7 +72,7 @@ class TrackCommand:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("source", help=SOURCE_GRAMMAR.replace("demo, auto, ", ""))
+    parser.add_argument("source", help=SOURCE_GRAMMAR)
     parser.add_argument(
         "--out", required=True, type=output_file, help="JSON Lines output, one per frame"
     )
@@ -117,8 +117,8 @@ def _command(args: argparse.Namespace) -> TrackCommand:
         raise ConfigError(f"--max-hands must be >= 1, got {args.max_hands}")
     if not (math.isfinite(args.hfov_deg) and 1.0 < args.hfov_deg < 179.0):
         raise ConfigError(f"--hfov-deg must be in (1, 179), got {args.hfov_deg}")
-    source = parse_source(args.source)
-    if source.kind in ("demo", "auto"):
+    source = sources.parse(args.source)
+    if not sources.kind(source.kind).tracked:
         raise ConfigError(f"track reads a camera, a video, images or synthetic, not {source.kind}")
     return TrackCommand(
         source=source,

@@ -3,17 +3,18 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from dsteleop.app import sources
 from dsteleop.app.link.config import LinkConfig, link_config_path, read_link_config
 from dsteleop.app.loop import LoopConfig
-from dsteleop.app.rrd.target import RerunTarget
 from dsteleop.errors import ConfigError
 from dsteleop.robot.description import RobotDescription, load_description
 from dsteleop.robot.task import INFER
-from dsteleop.tracking.sources import SourceSpec, parse_source
+from dsteleop.tracking.sources import SourceSpec
 
 #: A live session (`serve`) resets the task this long after each outcome, for the next
 #: trial [s] (`--reset-after`).
@@ -82,14 +83,13 @@ class LoopOptions:
         seed: seed of the goal noise and the demo operator.
         goal_noise_m: goal position noise [m] (None: the task's default).
         record: the session folder (run) or root (serve), or None.
-        record_video: record the camera frames too.
-        record_lerobot: write the recorded episodes into a LeRobot dataset there, or None.
+        outputs: what is written beside the sessions: each registered output asked for
+            (`app.outputs`, by name) with its checked setting, e.g. {"rerun": RerunTarget}.
         loop_video: play a video source again when it ends.
         rotate: turn video or camera frames [deg clockwise] (None: a video's own rotation).
         allow_partial: accept a video that ends before the frames it declares.
         time_limit_s: a trial without an outcome after this long fails [s] (None: the
             task's default, 120 s).
-        rerun: where a Rerun recording of the run goes, or None (docs/recordings.md).
         history: the operator history file (`--history`), or None: an empty history, kept
             nowhere.
         input_delay_given: the input delay was chosen (`--input-delay`, or a `--config`
@@ -105,13 +105,11 @@ class LoopOptions:
     seed: int = 0
     goal_noise_m: float | None = None
     record: Path | None = None
-    record_video: bool = False
-    record_lerobot: Path | None = None
+    outputs: Mapping[str, Any] = field(default_factory=dict)
     loop_video: bool = False
     rotate: int | None = None
     allow_partial: bool = False
     time_limit_s: float | None = None
-    rerun: RerunTarget | None = None
     history: Path | None = None
     input_delay_given: bool = False
 
@@ -136,10 +134,10 @@ class LoopOptions:
         **kw: Any,
     ) -> LoopOptions:
         """Options for code (benches, tests): a source in the `--source` grammar, a robot as
-        `--robot` names it (or read)."""
+        `--robot` names it (or read), the outputs by name with their settings."""
         if isinstance(robot, str):
             robot = RobotSpec.parse(robot)
-        return cls(parse_source(source), loop or LoopConfig(), robot=robot, **kw)
+        return cls(sources.parse(source), loop or LoopConfig(), robot=robot, **kw)
 
 
 def resolve_goal(goal: str | None, utensil: str | None) -> tuple[str, str]:

@@ -1,11 +1,8 @@
 """The composition root: builds a ready loop from the user's choices, wiring every port.
 
-    demo            the built-in demo: a synthetic operator doing the pick-and-place task
-    webcam:N        camera index N (or webcam:/dev/videoN)
-    video:PATH      a video file, upright (its container's rotation, or --rotate), paced at
-                    its frame rate when live from the loop's first tick; --loop-video
-                    plays it again at its end
-    auto            the first camera that opens, otherwise the demo (with a line saying so)
+The hand comes from the source's plug-in (`app.sources`: the demo, a camera, a video, ...):
+camera frames through the tracking pipeline, or a hand input of its own; what is written
+comes from the outputs' plug-ins (`app.outputs`).
 
 `realtime=True` (the live app) runs capture and tracking in their own threads and the loop on
 the monotonic clock; `realtime=False` (headless runs) reads and tracks each frame in the loop's
@@ -19,29 +16,27 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from dsteleop.app import outputs as output_registry
+from dsteleop.app import sources
 from dsteleop.app.compose.options import LoopOptions
-from dsteleop.app.inputs.demo import DemoCamera, DemoConfig, DemoOperator, demo_source
 from dsteleop.app.inputs.tracked import TrackedHandInput
 from dsteleop.app.loop import TeleopLoop
 from dsteleop.app.loop.timing import ManualClock, MonotonicClock
+from dsteleop.app.outputs import OutputContext
 from dsteleop.app.plants.kitchen import KitchenTask, simulated_kitchen
-from dsteleop.app.ports import Observer, Robot, Task
-from dsteleop.app.session.video import FrameRecorder
+from dsteleop.app.ports import HandInput, Observer, Output, Robot, Task
 from dsteleop.app.session.writer import HistoryFile
+from dsteleop.app.sources import SourceContext
 from dsteleop.errors import ConfigError
 from dsteleop.tracking.mapping import MappingConfig, WorkspaceMapping
 from dsteleop.tracking.pipeline import HandTracker, TrackingStream
 from dsteleop.tracking.sources import (
-    FrameSource,
     SourceSpec,
     VideoFileSource,
-    available_cameras,
-    open_source,
 )
 
 log = logging.getLogger(__name__)
@@ -53,49 +48,46 @@ class Built:
 
     Attributes:
         loop: the loop (not running yet; a live source starts with its first tick).
-        demo: the built-in demo operator, when the source is the demo.
         source: the resolved source.
         video: the video file behind the hand, when the source is one (its `partial`,
             `end_note()` once it ended).
-        rerun: the Rerun logger observing the loop, when asked for (`--rerun`).
+        outputs: the outputs opened for the loop, by name (`app.outputs`), in the
+            registry's order.
     """
 
     loop: TeleopLoop
-    demo: DemoOperator | None
     source: SourceSpec
     video: VideoFileSource | None = None
-    rerun: Any = None
-    dataset: Any = None
+    outputs: dict[str, Output] = field(default_factory=dict)
 
     def close(self) -> None:
-        """Close the loop (the recording, the source, the robot), then the live dataset (its
-        last episodes written) and the Rerun logger."""
+        """Close the loop (the recording, the source, the robot), then each output (a live
+        dataset's last episodes written, the Rerun log flushed), in order."""
         try:
             self.loop.close()
         finally:
-            try:
-                if self.dataset is not None:
-                    self.dataset.close()
-            finally:
-                if self.rerun is not None:
-                    self.rerun.close()
+            _close_all(list(self.outputs.values()))
+
+    def summaries(self) -> dict[str, Any]:
+        """What each output says it wrote, by name (those with something to say)."""
+        said = {name: out.summary() for name, out in self.outputs.items()}
+        return {name: s for name, s in said.items() if s is not None}
+
+
+def _close_all(outputs: list[Output]) -> None:
+    """Close every output, in order, each even when an earlier one failed."""
+    if not outputs:
+        return
+    try:
+        outputs[0].close()
+    finally:
+        _close_all(outputs[1:])
 
 
 def hand_mapping(fields: dict[str, Any]) -> MappingConfig | None:
     """The hand's workspace mapping from its fields (`HandInput.mapping_config`, the
     dataclass's own fields); None for a source without one (what a viewer shows)."""
     return MappingConfig(**fields) if fields else None
-
-
-def resolve_source(spec: SourceSpec) -> SourceSpec:
-    """`auto` -> the first camera that opens, or `demo` (with a line saying so)."""
-    if spec.kind != "auto":
-        return spec
-    cams = available_cameras()
-    if cams:
-        return SourceSpec("webcam", cams[0])
-    log.info("no webcam opens: starting the built-in demo (synthetic operator)")
-    return SourceSpec("demo")
 
 
 def build(
@@ -117,7 +109,11 @@ def build(
         observers: more observers of every tick.
         mapping: camera -> robot mapping (default `MappingConfig()`).
     """
-    spec = resolve_source(options.source)
+    spec = options.source
+    source_kind = sources.kind(spec.kind)
+    if source_kind.resolve is not None:  # `auto`: a camera, else the demo
+        spec = source_kind.resolve(spec)
+        source_kind = sources.kind(spec.kind)
     desc = options.robot.description
     link_config = options.robot.link
     if link_config is not None and abs(link_config.rate_hz * options.loop.dt_s - 1.0) > 1e-6:
@@ -129,28 +125,26 @@ def build(
     mapping = dataclasses.replace(
         mapping or MappingConfig(), robot_fingers=tuple((f.name, f.human) for f in desc.fingers)
     )
-    # The demo person works in the operator's world (docs/operator.md): the task's goal noise
-    # and the link's command delay come from it, unless given on the command line.
-    change_to, change_at_s = options.change_mind or (None, DemoConfig.change_at_s)
-    demo_config = DemoConfig(seed=options.seed, change_to=change_to, change_at_s=change_at_s)
+    # A source's world sets what the command line did not (the demo person's operator world,
+    # docs/operator.md: the task's goal noise and the link's command delay). A robot that
+    # infers its goal takes no goal noise from it: it perceives the candidates through its
+    # camera (`robot.perception`: the world's 2 cm along the camera's ray only, 5 mm across).
+    defaults = source_kind.defaults(options.seed)
     goal_noise_m = options.goal_noise_m
-    if spec.kind == "demo":
-        world = demo_config.world
-        if goal_noise_m is None and not options.infer:
-            # A told goal's isotropic noise; a robot that infers its goal perceives the
-            # candidates through its camera (`robot.perception`: the world's 2 cm along the
-            # camera's ray only, 5 mm across it).
-            goal_noise_m = world.goal_sigma_m
-        if not options.input_delay_given and options.loop.input_delay_s == 0.0:
-            options = dataclasses.replace(
-                options, loop=dataclasses.replace(options.loop, input_delay_s=world.delay_s)
-            )
+    if goal_noise_m is None and not options.infer:
+        goal_noise_m = defaults.goal_noise_m
+    delay_s = defaults.input_delay_s
+    if delay_s is not None and not options.input_delay_given and options.loop.input_delay_s == 0:
+        options = dataclasses.replace(
+            options, loop=dataclasses.replace(options.loop, input_delay_s=delay_s)
+        )
+    asked = [k for k in output_registry.registered() if k.name in options.outputs]
     task_options: dict[str, Any] = {
         "utensil": options.utensil,
         "infer": options.infer,
         "seed": options.seed,
         "goal_noise_m": goal_noise_m,
-        "export_scene": export_scene or options.rerun is not None,
+        "export_scene": export_scene or any(k.wants_scene for k in asked),
         "time_limit_s": options.time_limit_s,
         "control_dt_s": options.loop.dt_s,  # the world keeps the loop's time
     }
@@ -174,83 +168,73 @@ def build(
             desc.name,
             options.robot.link_file,
         )
-    rerun: Any = None
-    dataset: Any = None
+    opened_outputs: dict[str, Output] = {}
     try:
         task.reset()
         start = robot.reset(0.0).X
-        demo: DemoOperator | None = None
-        frames: FrameRecorder | None = None
-        video: VideoFileSource | None = None
-        if spec.kind == "demo":
-            if options.record_video:
-                log.warning("--record-video: the demo has no camera frames; no video is recorded")
-            demo = DemoOperator(
-                task.true_goals,
+        opened = source_kind.open(
+            spec,
+            SourceContext(
+                task,
                 start,
-                demo_config,
-                arbitration=options.loop.arbitration,
-            )
-            source: FrameSource = demo_source(
-                demo, DemoCamera(start, mapping), realtime=realtime, seed=options.seed
-            )
-        else:
-            source = open_source(
-                spec, realtime=realtime, rotate=options.rotate, loop=options.loop_video
-            )
-            if isinstance(source, VideoFileSource):
-                video = source
-            if options.record_video:
-                frames = FrameRecorder(source)
-                source = frames
+                mapping,
+                options.loop.arbitration,
+                realtime,
+                options.seed,
+                options.loop.input_delay_s,
+                rotate=options.rotate,
+                loop_video=options.loop_video,
+                change_mind=options.change_mind,
+            ),
+        )
+        context = OutputContext(
+            task,
+            options.loop.rate_hz,
+            options.record,
+            source_kind.pixels,
+            frames=source_kind.pixels and output_registry.FRAMES in options.outputs,
+        )
+        frames = opened.frames
+        for k in asked:
+            out = k.open(options.outputs[k.name], context)
+            if out is not None:
+                opened_outputs[k.name] = out
+                if frames is not None:
+                    frames = out.wrap_source(frames)
         delay = options.loop.input_delay_s
-        if realtime:
+        hand: HandInput
+        if opened.hand is not None:  # an input of its own, not a camera
+            hand = opened.hand
+        elif realtime:
+            assert frames is not None
             # Opened (and the model loaded) now; capture starts with the loop's first tick,
             # so a video plays from its first frame.
-            stream = TrackingStream(source, HandTracker()).open()
+            stream = TrackingStream(frames, HandTracker()).open()
             hand = TrackedHandInput.from_stream(stream, WorkspaceMapping(mapping), delay)
         else:
+            assert frames is not None
             hand = TrackedHandInput.from_source(
-                source, HandTracker(), WorkspaceMapping(mapping), delay, t0_s=0.0
+                frames, HandTracker(), WorkspaceMapping(mapping), delay, t0_s=0.0
             )
         history = None if options.history is None else HistoryFile(options.history)
         meta: dict[str, Any] = {"source_kind": spec.kind, "seed": options.seed}
-        if options.rerun is not None:
-            from dsteleop.app.rrd.live import RerunLogger
-
-            name = options.record.name if options.record is not None else None
-            rerun = RerunLogger(
-                options.rerun,
-                name or time.strftime("live-%Y%m%d-%H%M%S"),
-                scene=task.scene(),
-                plant_meta=task.describe(),
-            )
-            observers = (*observers, rerun)
-        if options.record_lerobot is not None:
-            from dsteleop.app.lerobot.live import LiveDataset
-
-            dataset = LiveDataset(
-                options.record_lerobot, round(options.loop.rate_hz), camera=frames is not None
-            )
         loop = TeleopLoop(
             options.loop,
             hand,
             robot,
             task,
             clock=MonotonicClock() if realtime else ManualClock(0.0),
-            observers=(*((demo,) if demo is not None else ()), *observers),
+            observers=(*opened.observers, *observers),
             history_file=history,
-            frame_recorder=frames,
+            outputs=tuple(opened_outputs.values()),
             record_root=record_root,
             meta=meta,
-            episode_sink=None if dataset is None else dataset.put,
         )
     except BaseException:
-        robot.close()
-        task.close()
-        if rerun is not None:
-            rerun.close()
-        if dataset is not None:
-            dataset.close()
+        try:
+            robot.close()
+            task.close()
+        finally:
+            _close_all(list(opened_outputs.values()))
         raise
-    return Built(loop, demo, spec, video, rerun, dataset)
+    return Built(loop, spec, opened.video, opened_outputs)

@@ -18,8 +18,10 @@ functions of `tick.py`. One tick:
     record    -> one TickRecord to every observer (and to the recorder, when recording)
 
 Everything a loop talks to is given to its constructor (the composition root is
-`app/compose/`): the hand, the robot, the task, the clock, the observers, where the operator
-history persists, the camera-frame recorder and where "Start recording" writes.
+`app/compose/`): the hand, the robot, the task, the clock, the observers, the outputs,
+where the operator history persists and where "Start recording" writes. The session's
+lifecycle (a folder opened, each record written and split into episodes, the outputs told)
+is `session.recording.Recording`'s; the loop says when.
 """
 
 from __future__ import annotations
@@ -60,22 +62,16 @@ from dsteleop.app.ports import (
     HandInput,
     HumanInput,
     Observer,
+    Output,
     PlantStep,
     Robot,
     RobotState,
     Task,
     TaskStep,
 )
-from dsteleop.app.session.episodes import EpisodeSplitter
-from dsteleop.app.session.schema import RecordingStatus, TickRecord, encode_event
-from dsteleop.app.session.video import FrameRecorder
-from dsteleop.app.session.writer import (
-    EpisodeSink,
-    HistoryFile,
-    Recorder,
-    SessionWriter,
-    new_session_folder,
-)
+from dsteleop.app.session.recording import Recording
+from dsteleop.app.session.schema import TickRecord, encode_event
+from dsteleop.app.session.writer import HistoryFile, new_session_folder
 from dsteleop.arbitration import HandState, Mode, OperatorHistory, dim_names, make_arbiter
 from dsteleop.arbitration.arbiters import compile_kernels
 from dsteleop.errors import DsteleopError
@@ -102,11 +98,11 @@ class TeleopLoop:
         observers: called with every tick's record, in the loop's thread (must not block).
         history: the operator's previous attempts (eq 6); default: loaded from `history_file`.
         history_file: where the history persists (saved at the end of each segment).
-        frame_recorder: records the camera frames of a session beside it, if any.
+        outputs: what is written beside the loop's sessions (`ports.Output`: the camera's
+            video, a live LeRobot dataset, a Rerun recording): each observes every tick after
+            the observers, and hears of each session and recorded episode.
         record_root: where a recording requested through `controls` is written.
         meta: extra metadata for recordings (source description, seeds, ...).
-        episode_sink: gets every recorded episode once its ticks are written (e.g. a live
-            LeRobot dataset, `--record-lerobot`).
         follow_frames: in real time (`run`), each tick follows the hand's new frames when
             the hand has them (`HandInput.arrivals`); False: the fixed-rate schedule.
     """
@@ -122,14 +118,12 @@ class TeleopLoop:
         observers: Sequence[Observer] = (),
         history: OperatorHistory | None = None,
         history_file: HistoryFile | None = None,
-        frame_recorder: FrameRecorder | None = None,
+        outputs: Sequence[Output] = (),
         record_root: Path | None = None,
         meta: dict[str, Any] | None = None,
-        episode_sink: EpisodeSink | None = None,
         follow_frames: bool = True,
     ) -> None:
         self.config = config
-        self._episode_sink = episode_sink
         self.follow_frames = follow_frames
         self.hand = hand
         self.robot = robot
@@ -138,23 +132,18 @@ class TeleopLoop:
         self.rate = RateClock(config.rate_hz, self.clock)
         self.controls = Controls()
         self.broadcaster = Broadcaster()
-        self._observers: tuple[Observer, ...] = (self.broadcaster, *observers)
+        self._observers: tuple[Observer, ...] = (self.broadcaster, *observers, *outputs)
         self._history_file = history_file
         if history is None:
             history = history_file.load() if history_file is not None else OperatorHistory()
-        self._frames = frame_recorder
+        self._recording = Recording(outputs)
         self.record_root = record_root
         self.meta = dict(meta or {})
         self.dims = dim_names(robot.finger_names)
         self._notes: list[str] = []
-        self._recorder: Recorder | None = None
-        self._episodes = EpisodeSplitter()
-        self._recording_t0: float | None = None
         self._t_outcome: float | None = None
         self._stop = threading.Event()
         self._overrun_said = False
-        #: Every session folder this loop recorded into, in order.
-        self.recordings: list[Path] = []
         # Frame-to-command latency [ms] of each new frame (its first command), recent ticks.
         self.latency_ms: deque[float] = deque(maxlen=18000)
         # Capture to tracked [ms] of the same frames: the tracker's own time per frame.
@@ -336,37 +325,21 @@ class TeleopLoop:
             "started_at": datetime.datetime.now(datetime.timezone.utc).isoformat(),
             **(extra or {}),
         }
-        self._recorder = Recorder(SessionWriter(folder, meta), self._episode_sink)
-        self.recordings.append(Path(folder))
-        self._episodes = EpisodeSplitter()
-        self._recording_t0 = None
-        if self._frames is not None:
-            self._frames.start(Path(folder))
-        log.info("recording to %s", folder)
-        return Path(folder)
+        return self._recording.start(Path(folder), meta)
 
     def stop_recording(self) -> None:
         """Close the recording: the open episode ends "stopped", meta.json is completed."""
-        recorder = self._recorder
-        if recorder is None:
-            return
-        if self._frames is not None:
-            self._frames.stop()
-        last = self._episodes.finish("stopped")
-        if last is not None:
-            recorder.end_episode(last)
-        recorder.close({"n_episodes": recorder.episodes, "timing": self.rate.summary()})
-        log.info(
-            "recording closed: %s (%d ticks, %d episodes)",
-            recorder.folder,
-            recorder.writer.n_ticks,
-            recorder.episodes,
-        )
-        self._recorder = None
+        self._recording.stop({"timing": self.rate.summary()})
 
     @property
     def recording(self) -> Path | None:
-        return None if self._recorder is None else self._recorder.folder
+        """The open session's folder, or None."""
+        return self._recording.folder
+
+    @property
+    def recordings(self) -> list[Path]:
+        """Every session folder this loop recorded into, in order."""
+        return self._recording.folders
 
     # --- the tick --------------------------------------------------------------------
 
@@ -456,29 +429,11 @@ class TeleopLoop:
             stopped=self.stopped,
             belief=None if inferred is None else inferred.record,
         )
-        if self._recorder is not None:
-            record = self._record(self._recorder, record)
+        record = self._recording.put(record, self.utensil)
         for observer in self._observers:
             observer.observe(record)
         self.tick_index += 1
         return record
-
-    def _record(self, recorder: Recorder, record: TickRecord) -> TickRecord:
-        """Write the record; end an episode it ends; the record with the recording's state."""
-        line = recorder.lines
-        recorder.put(record)
-        ended = self._episodes.push(line, record, self.utensil)
-        if ended is not None:
-            recorder.end_episode(ended)
-        if self._recording_t0 is None:
-            self._recording_t0 = record.t_s
-        status = RecordingStatus(
-            folder=str(recorder.folder),
-            elapsed_s=record.t_s - self._recording_t0,
-            episodes=recorder.episodes,
-            episode=self._episodes.current,
-        )
-        return dataclasses.replace(record, recording=status)
 
     def _observe_robot(self, now_s: float) -> PlantStep:
         """The robot's measured state and the task's judgement of it; while the robot is

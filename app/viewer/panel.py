@@ -34,16 +34,17 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from importlib import resources
-from pathlib import Path
 from string import Template
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from dsteleop.app import sources
 from dsteleop.app.ports import HumanInput
 from dsteleop.app.session.schema import RecordingStatus, Status, TickRecord
 from dsteleop.arbitration import ArbitrationStep
+from dsteleop.errors import ConfigError
 from dsteleop.tracking.mapping import MappingConfig
 from dsteleop.tracking.sources import SourceSpec
 
@@ -293,18 +294,14 @@ def recording_html(rec: RecordingStatus | None) -> str:
 
 
 def source_label(spec: SourceSpec) -> str:
-    """What drives the hand, in the status line's words: `demo` (the built-in synthetic
-    operator: no camera), `camera N`, `video NAME` (the file's name), `images NAME`,
-    `synthetic hand`, or the spec itself for anything else (`auto` is resolved before)."""
-    if spec.kind == "demo":
-        return "demo"
-    if spec.kind == "webcam":
-        return f"camera {spec.target}"
-    if spec.kind in ("video", "images"):
-        return f"{spec.kind} {Path(spec.target).name or spec.target}"
-    if spec.kind == "synthetic":
-        return "synthetic hand"
-    return str(spec)
+    """What drives the hand, in the status line's words, as its source's plug-in says
+    (`app.sources`: `demo` (the built-in synthetic operator: no camera), `camera N`,
+    `video NAME` (the file's name), `images NAME`, `synthetic hand`), or the spec itself
+    for a source no plug-in knows."""
+    try:
+        return sources.kind(spec.kind).label(spec)
+    except ConfigError:
+        return str(spec)
 
 
 #: What the status line adds to the source label of the demo.
