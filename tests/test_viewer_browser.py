@@ -393,15 +393,19 @@ def _halted(page: Page, what: str) -> None:
     """The page says stopped and the commanded speed is 0, then (after 1 s for the arm to
     settle) the palm it shows stays within 0.5 mm of where it is for 2 s (the demo's hand
     moves it by ~0.1 m/s: 200 mm in that time; the palm is shown to 0.1 mm, and the held arm
-    settles by a few tenths of a millimetre)."""
-    _wait(
-        lambda: _status(page)["stopped"] == "1" and float(_status(page)["cmdMps"]) == 0.0,
-        15.0,
-        f"the robot stopped ({what})",
-        page,
-    )
+    settles by a few tenths of a millimetre).
+
+    The demo's trial may end on its own between the page seeing the arm move and the stop
+    (on a fast machine it did: `finished`, success): the stop stays latched, and once the
+    next trial starts (serve resets `--reset-after` 4 s after an outcome) it shows
+    `stopped`; so the wait is for `stopped` itself, within 15 s plus that reset."""
+
+    def stopped() -> bool:
+        st = _status(page)
+        return st["stopped"] == "1" and float(st["cmdMps"]) == 0.0 and st["status"] == "stopped"
+
+    _wait(stopped, 15.0 + 4.0 + 5.0, f"the robot stopped ({what})", page)
     st = _status(page)
-    assert st["status"] == "stopped", st
     assert "ROBOT STOPPED" in page.locator(".dst-stop").inner_text()
     assert page.get_by_role("button", name="Resume").is_enabled()
     page.wait_for_timeout(1000)
