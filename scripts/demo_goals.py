@@ -157,8 +157,15 @@ def main() -> int:
         for m in modes:
             jobs.append(((m, seed, goal, utensil, extra), final))
     t0 = time.perf_counter()
+    rows = []
     with ProcessPoolExecutor(a.workers) as pool:
-        rows = list(pool.map(one, [j for j, _ in jobs]))
+        for i, r in enumerate(pool.map(one, [j for j, _ in jobs])):
+            rows.append(r)
+            sys.stderr.write(  # progress: a long table on a shared machine
+                f"{i + 1}/{len(jobs)} {r['mode']} seed {r['seed']}: {r['outcome']} "
+                f"{r['grasped_utensil']} {r['time_s']:.1f} s sim, {r['wall_s']} s wall\n"
+            )
+            sys.stderr.flush()
     for r, (_, final) in zip(rows, jobs, strict=True):
         r["final_utensil"] = final
     sys.stdout.write(table(rows, modes) + "\n")

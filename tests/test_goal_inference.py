@@ -139,15 +139,17 @@ def _rate(runs: Sequence[tuple[list[TickRecord], str]]) -> int:
 
 @pytest.mark.slow
 def test_the_belief_finds_the_persons_utensil_in_the_demo_at_a_stated_rate() -> None:
-    """Seeds 0-8 of the demo in DS, the person's utensil cycling with the seed: the MAP at
-    the grasp is the person's utensil, and it is the one grasped, in >= 7 of 9 (measured
-    over seeds 0-19 in docs/operator.md)."""
-    runs = []
+    """Seeds 0-8 of the demo in DS, the person's utensil cycling with the seed (chance: 3 of
+    9): the MAP at the end of the pick phase is the person's utensil in >= 7 of 9, whether or
+    not the task then succeeded (a run that times out, as told runs do too, still says what
+    the belief found; the demo's table in docs/operator.md counts the task's successes and
+    this rate over seeds 0-19)."""
+    found = []
     for seed in range(9):
         utensil = UTENSILS[seed % 3]
-        records = _demo(goal="infer", utensil=utensil, seed=seed)
-        runs.append((records, utensil))
-    assert _rate(runs) >= 7
+        m = belief_metrics_of(_demo(goal="infer", utensil=utensil, seed=seed), 1 / 30)
+        found.append((seed, utensil, None if m is None else m["map_final"]))
+    assert sum(want == got for _, want, got in found) >= 7, found
 
 
 @pytest.mark.slow
