@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from dsteleop.app.cli.main import main
-from dsteleop.app.operator.closed_loop import Intention
+from dsteleop.app.operator.person import Intention
 from dsteleop.app.operator.world import Impairments
 from dsteleop.app.study import batch, results
 from dsteleop.app.study import planar as study_planar

@@ -11,7 +11,9 @@ and under TYPE_CHECKING): arrows point down only (docs/ARCHITECTURE.md, "Layers"
 
 A rule is a package and the packages it must not import, with the reason. A test of this
 file also proves that a rule can fail: a module that breaks one is caught. Beside the rules,
-the graph of app's packages (and top-level modules) must have no cycle (`package_cycles`).
+the graph of app's packages (and top-level modules) must have no cycle (`package_cycles`),
+and no module is longer than `MAX_LINES` without saying why in its docstring (`WHY`): a room
+that long usually holds more than one idea.
 """
 
 from __future__ import annotations
@@ -237,3 +239,41 @@ def test_a_cycle_between_packages_is_found() -> None:
 def test_the_command_line_may_import_everything() -> None:
     assert not violations("dsteleop.app.cli.run", "from dsteleop.app.cli.options import x\n")
     assert not violations("dsteleop.app.compose.root", "from dsteleop.app.loop import T\n")
+
+
+#: How long a module may be without a reason in its docstring (issue 34: split by idea).
+MAX_LINES = 700
+#: What starts that reason in the docstring.
+WHY = "Why one module:"
+#: Modules over MAX_LINES left as they are here, each with why.
+LEFT = {
+    "robot/arm.py": "the simulated arm is the robots' area: theirs to split or to explain",
+}
+
+
+def too_long(rel: str, source: str) -> str | None:
+    """One line if the module `rel` (its `source`) is over MAX_LINES and its docstring gives
+    no reason (`WHY`), else None."""
+    n = len(source.splitlines())
+    if n <= MAX_LINES or rel in LEFT:
+        return None
+    if WHY in (ast.get_docstring(ast.parse(source)) or ""):
+        return None
+    return f"{rel}: {n} lines, over {MAX_LINES}, and its docstring says no '{WHY} ...'"
+
+
+def test_no_module_is_long_without_a_reason() -> None:
+    found = []
+    for path in sources():
+        rel = path.relative_to(ROOT).as_posix()
+        line = too_long(rel, path.read_text(encoding="utf-8"))
+        if line is not None:
+            found.append(line)
+    assert not found, "\n".join(found)
+
+
+def test_a_long_module_without_a_reason_is_caught() -> None:
+    body = "x = 1\n" * MAX_LINES
+    assert too_long("app/study/x.py", '"""A module."""\n' + body) is not None
+    assert too_long("app/study/x.py", f'"""A module.\n\n{WHY} one loop."""\n' + body) is None
+    assert too_long("app/study/x.py", body[: -len("x = 1\n")]) is None

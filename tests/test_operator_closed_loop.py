@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from dsteleop.app.operator.closed_loop import ClosedLoopOperator, Intention, OperatorProfile
+from dsteleop.app.operator.closed_loop import ClosedLoopOperator
+from dsteleop.app.operator.person import Intention, OperatorProfile
 from dsteleop.app.operator.world import CommandDelay, Impairments
 from dsteleop.arbitration import HandState, so3_exp
 from dsteleop.arbitration.se3 import stack

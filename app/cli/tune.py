@@ -2,7 +2,7 @@
 
     dsteleop tune --objective study|sessions|both --trials N|--trials-per-param K --out DIR
                   [--mode M] [--space NAME=SPEC ...] [--widen-edges N]
-                  [--metric agreement|cosine_distance|time_s|success]
+                  [--metric agreement|success|time_s|cosine_distance|...]
                   [--no-constraint] [--sampler tpe|grid|random] [--seed K] [--grid-points K]
                   [--trajectories N] [--study-seed S] [world options of `dsteleop sim`]
                   [--sessions PATH ...]
@@ -70,6 +70,7 @@ class TuneCommand:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from dsteleop.app.study import metric_table
     from dsteleop.app.tune.space import SPACE_GRAMMAR
     from dsteleop.arbitration import registered
 
@@ -114,7 +115,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     a(
         "--metric",
         default=None,
-        help="the mode's metric to optimise: agreement (default), cosine_distance, time_s, success",
+        help="the mode's metric to optimise: agreement (default) or another of the metric "
+        f"table's ({', '.join(n for n in metric_table.names() if n != 'agreement')}; docs/tune.md)",
     )
     a(
         "--no-constraint",

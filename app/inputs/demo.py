@@ -69,7 +69,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from dsteleop.app.operator.closed_loop import ClosedLoopOperator, Intention, OperatorProfile
+from dsteleop.app.operator.closed_loop import ClosedLoopOperator
+from dsteleop.app.operator.person import Intention, OperatorProfile
 from dsteleop.app.operator.world import Impairments
 from dsteleop.app.session.schema import TickRecord
 from dsteleop.arbitration import ArbitrationConfig, HandState

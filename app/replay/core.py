@@ -9,9 +9,10 @@ robot the session recorded (`robot="recorded"`, open loop: the recorded arbitrat
 back exactly, on any machine). `as_recorded` reads a session's
 own ticks as it happened.
 
-Metrics per run (paper Section IV-D), over the ticks where the arbitration ran; actions are
-compared in units of each dimension's velocity limit (U / v_max), so metres, radians and
-openness weigh alike:
+Metrics per run: those of the metric table (app/study/metric_table.py, each with its `replay`
+definition; a metric registered there is one more), the paper's Section IV-D, over the ticks
+where the arbitration ran; actions are compared in units of each dimension's velocity limit
+(U / v_max), so metres, radians and openness weigh alike:
 
     cosine distance  the paper's: the SUM over actions of 1 - U_h.U_out / (|U_h| |U_out|);
                      beside it, labelled, the mean per action
@@ -57,6 +58,7 @@ from dsteleop.app.session.episodes import Episode
 from dsteleop.app.session.reader import Session
 from dsteleop.app.session.schema import TickRecord
 from dsteleop.app.session.trace import Trace
+from dsteleop.app.study import metric_table
 from dsteleop.arbitration import Mode, OperatorHistory, metrics
 from dsteleop.errors import InputError
 from dsteleop.robot.scene import SceneGeometry
@@ -181,22 +183,24 @@ def belief_of(trace: Trace) -> dict[str, Any] | None:
     return belief_metrics(trace.t_s.tolist(), trace.beliefs, trace.grasped, trace.dims, dt)
 
 
-def action_metrics(trace: Trace) -> dict[str, float | int | None]:
-    """Cosine distance (the paper's sum; the mean per action beside it) and agreement over
-    the arbitrated ticks, in v_max units, both skipping the same idle actions."""
-    m = trace.arbitrated
-    U_h = trace.step.U_human[m] / trace.v_max
-    U_o = trace.step.U_out[m] / trace.v_max
-    p = metrics.ActionProducts.of(U_h, U_o)
-    cos = metrics.summarise_cosines(metrics.cosine_distances(p))
-    agree = metrics.agreement_of(p)
-    return {
-        "cosine_distance": num(cos.total) if int(cos.n_actions) > 0 else None,
-        "cosine_distance_per_action_mean": num(cos.mean),
-        "agreement": num(agree.ratio),
-        "actions": int(cos.n_actions),
-        "skipped_idle": int(cos.n_skipped),
-    }
+def action_counts(trace: Trace) -> dict[str, int]:
+    """The arbitrated ticks' actions the action metrics counted, and the idle ones they
+    skipped (both metrics skip the same)."""
+    cos = metrics.summarise_cosines(metrics.cosine_distances(metric_table.replay_products(trace)))
+    return {"actions": int(cos.n_actions), "skipped_idle": int(cos.n_skipped)}
+
+
+def metric_values(trace: Trace) -> dict[str, Any]:
+    """One run's value of every metric of the table (app/study/metric_table.py) and of its
+    variant, in the table's order: success, time, cosine distance (the paper's sum; the mean
+    per action beside it) and agreement over the arbitrated ticks, the action metrics in
+    v_max units, both skipping the same idle actions."""
+    out: dict[str, Any] = {}
+    for m in metric_table.table():
+        out[m.name] = m.replay(trace)
+        if m.variant is not None:
+            out[metric_table.variant_key(m)] = m.variant.replay(trace)
+    return out
 
 
 def is_censored(trace: Trace) -> bool:
@@ -293,12 +297,16 @@ def session_summary(name: str, recorded_s: float, traces: Sequence[Trace]) -> di
             d: num(np.nanmean(alpha[tr.arbitrated, i])) if tr.arbitrated.any() else None
             for i, d in enumerate(tr.dims)
         }
+        row: dict[str, Any] = {}
+        for key, value in metric_values(tr).items():
+            row[key] = value
+            if key == "success":
+                row["outcome"] = tr.outcome_name
+            elif key == "time_s":
+                row["censored"] = is_censored(tr)
         modes[tr.mode.value] = {
-            "success": tr.success,
-            "outcome": tr.outcome_name,
-            "time_s": round(tr.time_s, 4),
-            "censored": is_censored(tr),
-            **action_metrics(tr),
+            **row,
+            **action_counts(tr),
             "mean_alpha": mean_alpha,
             "arbitrated_ticks": int(tr.arbitrated.sum()),
         }
@@ -317,39 +325,20 @@ def aggregate(
     agg: dict[str, Any] = {}
     per: dict[str, dict[str, list[float]]] = {}
     counted = [e for e in entries if e.get("counted", True)]
+    table = metric_table.table()
+    n_runs: dict[str, int] = {}
     for mode in modes:
         rows = [s["modes"][mode] for s in counted if mode in s["modes"]]
-        succ = [bool(r["success"]) for r in rows]
-        times = [r["time_s"] for r in rows if r["time_s"] and r["time_s"] > 0]
-        cos = [r["cosine_distance"] for r in rows if r["cosine_distance"] is not None]
-        agr = [r["agreement"] for r in rows if r["agreement"] is not None]
-        per[mode] = {"success": [float(x) for x in succ], "time": times, "cos": cos, "agr": agr}
-        sr = metrics.success_rate(sum(succ), len(succ)) if succ else None
-        gt = metrics.geometric_mean(times) if len(times) >= 1 else None
-        per_action = [
-            r["cosine_distance_per_action_mean"]
-            for r in rows
-            if r.get("cosine_distance_per_action_mean") is not None
-        ]
-        cen = sum(bool(r.get("censored", False)) for r in rows)
-        gc, ga = _geometric(cos), _geometric(agr)
-        agg[mode] = {
+        n_runs[mode] = len(rows)
+        per[mode] = {m.name: _values(m, rows) for m in table}
+        out: dict[str, Any] = {
             "n": len(rows),
             "excluded": sum(1 for e in entries if mode in e["modes"]) - len(rows),
-            "success_rate": None if sr is None else jsonable(sr),
-            "time_s": None if gt is None else jsonable(gt),
-            "time_s_arithmetic_mean": num(np.mean(times)) if times else None,
-            "censored": {"count": cen, "share": cen / len(rows) if rows else None},
-            # The paper's Table I: geometric means over episodes (None when a value is <= 0).
-            "cosine_distance": None if gc is None else gc.mean,
-            "cosine_distance_ci95": None if gc is None else [gc.ci_low, gc.ci_high],
-            "cosine_distance_arithmetic_mean": num(np.mean(cos)) if cos else None,
-            "cosine_distance_per_action_mean": num(np.mean(per_action)) if per_action else None,
-            "agreement": None if ga is None else ga.mean,
-            "agreement_ci95": None if ga is None else [ga.ci_low, ga.ci_high],
-            "agreement_arithmetic_mean": num(np.mean(agr)) if agr else None,
-            "skipped_idle": sum(int(r.get("skipped_idle", 0)) for r in rows),
         }
+        for m in table:
+            out.update(_summary(m, per[mode][m.name], rows))
+        out["skipped_idle"] = sum(int(r.get("skipped_idle", 0)) for r in rows)
+        agg[mode] = out
         beliefs = aggregate_beliefs([r.get("belief") for r in rows])
         if beliefs is not None:
             agg[mode]["belief"] = beliefs
@@ -357,45 +346,87 @@ def aggregate(
     for i, a in enumerate(modes):
         for b in modes[i + 1 :]:
             pa, pb = per[a], per[b]
-            na, nb = len(pa["success"]), len(pb["success"])
+            na, nb = n_runs[a], n_runs[b]
             entry: dict[str, Any] = {"n": [na, nb], "meaningful": min(na, nb) >= MIN_EPISODES}
             if not entry["meaningful"]:
                 entry["note"] = (
                     f"{a} vs {b}: n = {na} and {nb} episodes; fewer than {MIN_EPISODES} a "
                     "mode: the tests below are not meaningful"
                 )
-            both = [
-                (bool(e["modes"][a]["success"]), bool(e["modes"][b]["success"]))
-                for e in counted
-                if a in e["modes"] and b in e["modes"]
-            ]
-            if both:
-                first, second = zip(*both, strict=True)
-                entry["success_mcnemar"] = jsonable(metrics.mcnemar(first, second))
-            if pa["success"] and pb["success"]:
-                entry["success_n1_chi2"] = jsonable(
-                    metrics.n1_chi_squared(
-                        int(sum(pa["success"])),
-                        len(pa["success"]),
-                        int(sum(pb["success"])),
-                        len(pb["success"]),
-                    )
-                )
-            for name, k in (
-                ("log_time_ttest", "time"),
-                ("cosine_distance_ttest", "cos"),
-                ("agreement_ttest", "agr"),
-            ):
-                xa, xb = pa[k], pb[k]
-                if len(xa) >= 2 and len(xb) >= 2:
-                    ya, yb = (
-                        (np.log(xa), np.log(xb))
-                        if k == "time"
-                        else (np.asarray(xa), np.asarray(xb))
-                    )
-                    entry[name] = jsonable(metrics.t_test(ya, yb))
+            for m in table:
+                entry.update(_tests(m, counted, a, b, pa[m.name], pb[m.name]))
             tests[f"{a}_vs_{b}"] = entry
     return agg, tests
+
+
+def _values(m: metric_table.Metric, rows: Sequence[dict[str, Any]]) -> list[float]:
+    """A metric's values over runs that have one: a rate's 0/1, a log metric's positive
+    values, a linear one's values that are not None."""
+    if m.scale == "rate":
+        return [float(bool(r[m.name])) for r in rows]
+    if m.scale == "log":
+        return [r[m.name] for r in rows if r[m.name] and r[m.name] > 0]
+    return [r[m.name] for r in rows if r[m.name] is not None]
+
+
+def _summary(
+    m: metric_table.Metric, x: Sequence[float], rows: Sequence[dict[str, Any]]
+) -> dict[str, Any]:
+    """One mode's aggregate of the metric `m` over its runs' values `x`: a rate's estimate
+    (`success_rate`); a log metric's geometric mean (and the censored runs beside the
+    time); a linear one's geometric mean (the paper's Table I) with its interval; both with
+    the arithmetic mean beside, labelled, and a variant's mean."""
+    if m.scale == "rate":
+        sr = metrics.success_rate(int(sum(x)), len(x)) if x else None
+        return {m.summary_key: None if sr is None else jsonable(sr)}
+    out: dict[str, Any] = {}
+    if m.scale == "log":
+        out[m.name] = jsonable(metrics.geometric_mean(x)) if x else None
+    else:
+        g = _geometric(x)
+        out[m.name] = None if g is None else g.mean
+        out[f"{m.name}_ci95"] = None if g is None else [g.ci_low, g.ci_high]
+    out[f"{m.name}_arithmetic_mean"] = num(np.mean(x)) if x else None
+    if m.name == "time_s":  # which of the times are bounds, not completion times
+        cen = sum(bool(r.get("censored", False)) for r in rows)
+        out["censored"] = {"count": cen, "share": cen / len(rows) if rows else None}
+    if m.variant is not None:
+        k = metric_table.variant_key(m)
+        v = [r[k] for r in rows if r.get(k) is not None]
+        out[k] = num(np.mean(v)) if v else None
+    return out
+
+
+def _tests(
+    m: metric_table.Metric,
+    counted: Sequence[dict[str, Any]],
+    a: str,
+    b: str,
+    xa: Sequence[float],
+    xb: Sequence[float],
+) -> dict[str, Any]:
+    """The paper's tests of one metric between modes a and b: a rate's McNemar test on the
+    episodes run in both and its N-1 chi-squared test; a t test of the others (of the logs
+    for a log metric), each where there are values."""
+    out: dict[str, Any] = {}
+    if m.scale == "rate":
+        both = [
+            (bool(e["modes"][a][m.name]), bool(e["modes"][b][m.name]))
+            for e in counted
+            if a in e["modes"] and b in e["modes"]
+        ]
+        if both:
+            first, second = zip(*both, strict=True)
+            out[f"{m.test_key}_mcnemar"] = jsonable(metrics.mcnemar(first, second))
+        if xa and xb:
+            out[f"{m.test_key}_n1_chi2"] = jsonable(
+                metrics.n1_chi_squared(int(sum(xa)), len(xa), int(sum(xb)), len(xb))
+            )
+        return out
+    if len(xa) >= 2 and len(xb) >= 2:
+        ya, yb = (np.log(xa), np.log(xb)) if m.scale == "log" else (np.asarray(xa), np.asarray(xb))
+        out[f"{m.test_key}_ttest"] = jsonable(metrics.t_test(ya, yb))
+    return out
 
 
 def _geometric(x: Sequence[float]) -> metrics.GeometricMean | None:

@@ -8,32 +8,22 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from dsteleop.app.study.metric_table import Metric, table, variant_key
+
 
 def brief(
     summary: dict[str, Any], out: Path, files: Sequence[str], elapsed_s: float, workers: int
 ) -> dict[str, Any]:
     """The JSON object printed on stdout: where the files are and the headline numbers."""
-    modes = {
-        name: {
-            "success_rate": m["success_rate"]["estimate"],
-            "time_s": m["time_s"]["geometric_mean"],
-            "time_censored_share": m["time_s"]["censored"]["share"],
-            "cosine_distance": m["cosine_distance"]["geometric_mean"],
-            "cosine_distance_per_action_mean": m["cosine_distance"]["per_action_mean"]["mean"],
-            "agreement": m["agreement"]["geometric_mean"],
-        }
-        for name, m in summary["modes"].items()
-    }
+    modes = {name: _headline(m) for name, m in summary["modes"].items()}
     tests = summary["tests"].get("S_vs_DS")
     p = None
     if tests:
-        p = {
-            "success": tests["success_n1_chi2"]["p_value"],
-            "success_mcnemar_mid_p": tests["success_mcnemar"]["p_mid"],
-            "log_time": tests["log_time"]["two_sample_t"]["p_value"],
-            "cosine_distance": tests["cosine_distance"]["two_sample_t"]["p_value"],
-            "agreement": tests["agreement"]["two_sample_t"]["p_value"],
-        }
+        p = {}
+        for metric in table():
+            p[metric.test_key] = _p_value(tests, metric)
+            if metric.scale == "rate":
+                p[f"{metric.test_key}_mcnemar_mid_p"] = tests[f"{metric.test_key}_mcnemar"]["p_mid"]
     fig = summary["fig5_fig6"]
     x_per_y = {k: fig[k]["mean"] for k in ("S", "DS") if k in fig}
     if "paired_t_S_minus_DS" in fig:
@@ -53,6 +43,24 @@ def brief(
     }
 
 
+def _headline(m: dict[str, Any]) -> dict[str, Any]:
+    """One mode's numbers in the JSON line: each metric's Table I statistic (a rate's
+    estimate, the others' geometric mean), its variant's mean and the censored share of the
+    times."""
+    out: dict[str, Any] = {}
+    for metric in table():
+        s = m[metric.summary_key]
+        if metric.scale == "rate":
+            out[metric.summary_key] = s["estimate"]
+            continue
+        out[metric.name] = s["geometric_mean"]
+        if "censored" in s:
+            out[f"{metric.short or metric.name}_censored_share"] = s["censored"]["share"]
+        if metric.variant is not None:
+            out[variant_key(metric)] = s[metric.variant.suffix]["mean"]
+    return out
+
+
 def markdown(summary: dict[str, Any]) -> str:
     """summary.md: the paper's Table I shape, then the tests and divergences."""
     tests = summary["tests"].get("S_vs_DS")
@@ -60,31 +68,12 @@ def markdown(summary: dict[str, Any]) -> str:
     # in the paper's Table I.
     better: dict[str, str | None] = {}
     if tests:
-
-        def pick(key: str, p: float, s_val: float, ds_val: float, lower: bool) -> None:
-            if p < 0.05:
-                better[key] = (
-                    ("S" if s_val < ds_val else "DS")
-                    if lower
-                    else ("S" if s_val > ds_val else "DS")
-                )
-
         m = summary["modes"]
-        for key, test, metric, stat, lower in (
-            ("success", tests["success_n1_chi2"], "success_rate", "estimate", False),
-            ("time", tests["log_time"]["two_sample_t"], "time_s", "geometric_mean", True),
-            (
-                "cos",
-                tests["cosine_distance"]["two_sample_t"],
-                "cosine_distance",
-                "geometric_mean",
-                True,
-            ),
-            ("agree", tests["agreement"]["two_sample_t"], "agreement", "geometric_mean", False),
-        ):
-            s_val, ds_val = m["S"][metric][stat], m["DS"][metric][stat]
-            if s_val is not None and ds_val is not None:
-                pick(key, test["p_value"], s_val, ds_val, lower)
+        for metric in table():
+            stat = "estimate" if metric.scale == "rate" else "geometric_mean"
+            s_val, ds_val = (m[x][metric.summary_key][stat] for x in ("S", "DS"))
+            if s_val is not None and ds_val is not None and _p_value(tests, metric) < 0.05:
+                better[metric.name] = "S" if metric.better(s_val, ds_val) else "DS"
 
     def cell(
         key: str, mode: str, est: float | None, ci: Sequence[float | None], digits: int
@@ -124,32 +113,16 @@ def markdown(summary: dict[str, Any]) -> str:
         "metrics skip the same idle actions (|U_h| or |U_out| <= 1e-9: no direction). "
         "n/a: a value <= 0 leaves no geometric mean. Bold: better of S and DS with p < 0.05.",
         "",
-        "| Mode | Success Rate | Trial Time (s) | Cosine Distance | Ratio of Agreement |",
-        "| --- | --- | --- | --- | --- |",
+        "| Mode | " + " | ".join(_table_i(m)[0] for m in table()) + " |",
+        "| --- |" + " --- |" * len(table()),
     ]
     for name, m in summary["modes"].items():
-        lines.append(
-            f"| {name} | "
-            + " | ".join(
-                [
-                    cell(
-                        "success", name, m["success_rate"]["estimate"], m["success_rate"]["ci95"], 3
-                    ),
-                    cell("time", name, m["time_s"]["geometric_mean"], m["time_s"]["ci95"], 2),
-                    cell(
-                        "cos",
-                        name,
-                        m["cosine_distance"]["geometric_mean"],
-                        m["cosine_distance"]["ci95"],
-                        2,
-                    ),
-                    cell(
-                        "agree", name, m["agreement"]["geometric_mean"], m["agreement"]["ci95"], 3
-                    ),
-                ]
-            )
-            + " |"
-        )
+        cells = []
+        for metric in table():
+            s = m[metric.summary_key]
+            est = s["estimate"] if metric.scale == "rate" else s["geometric_mean"]
+            cells.append(cell(metric.name, name, est, s["ci95"], _table_i(metric)[1]))
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
     lines += [
         "",
         "Beside the paper's statistics, labelled: arithmetic means (time, cosine distance sum, "
@@ -411,28 +384,63 @@ def _tests_section(tests: dict[str, Any], first: str, second: str) -> list[str]:
         "",
         "| Metric | Test | Statistic | p |",
         "| --- | --- | --- | --- |",
-        "| success | N-1 chi-squared | "
-        f"{tests['success_n1_chi2']['chi2']:.3f} | {_p(tests['success_n1_chi2']['p_value'])} |",
-        _mcnemar_row(tests["success_mcnemar"], first, second),
     ]
-    for key, label in (
-        ("log_time", "log time"),
-        ("cosine_distance", "cosine distance (sum)"),
-        ("cosine_distance_per_action_mean", "cosine distance per action (labelled)"),
-        ("agreement", "agreement"),
-    ):
-        for test, tlabel in (("two_sample_t", "two-sample t"), ("paired_t", "paired t")):
-            r = tests[key][test]
-            lines.append(f"| {label} | {tlabel} | {r['t']:.3f} | {_p(r['p_value'])} |")
+    for metric in table():
+        if metric.scale == "rate":
+            chi = tests[f"{metric.test_key}_n1_chi2"]
+            lines += [
+                f"| {metric.name} | N-1 chi-squared | {chi['chi2']:.3f} | {_p(chi['p_value'])} |",
+                _mcnemar_row(tests[f"{metric.test_key}_mcnemar"], first, second, metric.name),
+            ]
+    for metric in table():
+        if metric.scale == "rate":
+            continue
+        keys = [(metric.test_key, _TEST_LABELS.get(metric.name, metric.label))]
+        if metric.variant is not None:
+            label = _TEST_LABELS.get(variant_key(metric), f"{metric.label} {metric.variant.suffix}")
+            keys.append((variant_key(metric), label))
+        for key, label in keys:
+            for test, tlabel in (("two_sample_t", "two-sample t"), ("paired_t", "paired t")):
+                r = tests[key][test]
+                lines.append(f"| {label} | {tlabel} | {r['t']:.3f} | {_p(r['p_value'])} |")
     return lines
 
 
-def _mcnemar_row(t: dict[str, Any], first: str, second: str) -> str:
+def _mcnemar_row(t: dict[str, Any], first: str, second: str, name: str = "success") -> str:
     return (
-        f"| success | McNemar (paired; {t['first_only']} {first} only, "
+        f"| {name} | McNemar (paired; {t['first_only']} {first} only, "
         f"{t['second_only']} {second} only) "
         f"| exact p {_p(t['p_exact'])} | mid-p {_p(t['p_mid'])} |"
     )
+
+
+#: The paper's Table I: its column heading and the digits of each of its metrics (another
+#: metric: its heading with the unit, 3 digits).
+_TABLE_I: dict[str, tuple[str, int]] = {
+    "success": ("Success Rate", 3),
+    "time_s": ("Trial Time (s)", 2),
+    "cosine_distance": ("Cosine Distance", 2),
+    "agreement": ("Ratio of Agreement", 3),
+}
+#: The words of the tests' table for the paper's metrics (another one: its label).
+_TEST_LABELS = {
+    "time_s": "log time",
+    "cosine_distance": "cosine distance (sum)",
+    "cosine_distance_per_action_mean": "cosine distance per action (labelled)",
+    "agreement": "agreement",
+}
+
+
+def _table_i(m: Metric) -> tuple[str, int]:
+    return _TABLE_I.get(m.name, (m.heading, 3))
+
+
+def _p_value(tests: dict[str, Any], m: Metric) -> float:
+    """The p-value that marks a metric's difference in Table I: the N-1 chi-squared test's
+    for a rate, the two-sample t test's otherwise (of the logs for a log metric)."""
+    if m.scale == "rate":
+        return float(tests[f"{m.test_key}_n1_chi2"]["p_value"])
+    return float(tests[m.test_key]["two_sample_t"]["p_value"])
 
 
 def _mean(m: float | None, ci: Sequence[float | None], digits: int) -> str:

@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dsteleop.app.study.inference import ObjectRows
+from dsteleop.app.study.metric_table import Trials, table, variant_key
 from dsteleop.app.study.planar import Array, SimConfig, in_success_region
 from dsteleop.arbitration import metrics
 from dsteleop.arbitration.se3 import ROT, TRANS
@@ -58,6 +59,7 @@ class ModeResult:
     hand_hist: NDArray[np.int64]  # the hand's (x, y, heading) histogram in this mode
     hand_paths: Array  # (P, T', 3) the hand's paths of the first trajectories
     variants: dict[str, Array]  # per-trajectory metric variants (`metric_variants`)
+    values: dict[str, Array]  # (N,) per metric of the table and its variant (`study_values`)
     committed: NDArray[np.bool_]  # (N,) the closed-loop operator committed (True for open loop)
     hand_final: Array  # (N, 3) the hand's final x, y, heading
     attempt: NDArray[np.int64]  # (N,) the run of each row (0 first)
@@ -74,6 +76,8 @@ class ModeResult:
 
 #: ModeResult's fields that are not one row per trial (summed or kept for the first paths).
 _POOLED = ("hist", "paths", "hand_hist", "hand_paths")
+#: ModeResult's fields that are dicts of rows (one array per name).
+_BY_NAME = ("variants", "values")
 
 
 def concat_results(parts: Sequence[ModeResult]) -> ModeResult:
@@ -85,7 +89,7 @@ def concat_results(parts: Sequence[ModeResult]) -> ModeResult:
             out[f.name] = np.sum(vals, axis=0)
         elif f.name in ("paths", "hand_paths"):
             out[f.name] = _cat_paths(vals)
-        elif f.name == "variants":
+        elif f.name in _BY_NAME:
             out[f.name] = {k: np.concatenate([v[k] for v in vals]) for k in vals[0]}
         else:
             out[f.name] = np.concatenate(vals)
@@ -99,7 +103,7 @@ def take_rows(r: ModeResult, order: NDArray[np.intp]) -> ModeResult:
         v = getattr(r, f.name)
         if f.name in _POOLED:
             out[f.name] = v
-        elif f.name == "variants":
+        elif f.name in _BY_NAME:
             out[f.name] = {k: x[order] for k, x in v.items()}
         else:
             out[f.name] = v[order]
@@ -230,6 +234,9 @@ def mode_result(
         hand_hist=metrics.trajectory_histogram(hand_tm[hand_valid], HIST_BINS, ranges),
         hand_paths=_paths(hand[:n_paths], lengths[:n_paths]),
         variants=_variants(cfg, groups, acted, lit, c),
+        values=study_values(
+            Trials(success, time_s, U_h_all, U_out_all, acted, cos.total, cos.mean, ag.ratio)
+        ),
         committed=committed,
         hand_final=hand[rows, last],
         attempt=np.full(N, attempt, dtype=np.int64),
@@ -260,6 +267,17 @@ def _object_fields(
         "map_final": objects.map.final, "map_switches": objects.map.switches,
         "map_settled_s": objects.map.settled_s,
     }  # fmt: skip
+
+
+def study_values(trials: Trials) -> dict[str, Array]:
+    """Per trajectory, the value of every metric of the table and of its variant (keyed by
+    `variant_key`), from one mode's trials."""
+    out: dict[str, Array] = {}
+    for m in table():
+        out[m.name] = np.asarray(m.study(trials))
+        if m.variant is not None:
+            out[variant_key(m)] = np.asarray(m.variant.study(trials))
+    return out
 
 
 VARIANTS = {

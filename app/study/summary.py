@@ -13,11 +13,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from dsteleop.app.study.metric_table import Metric, table, tuning_key, tuning_order, variant_key
 from dsteleop.app.study.planar import (
     Array,
     SimConfig,
@@ -66,24 +68,9 @@ def summarise(res: StudyResult, figures: StudyResult | None = None) -> dict[str,
     cfg = res.config
     modes: dict[str, Any] = {}
     for name, r in res.modes.items():
-        sr = metrics.success_rate(int(r.success.sum()), int(r.success.size))
         modes[name] = {
             "n": int(r.success.size),
-            "success_rate": {
-                "estimate": sr.laplace,
-                "ci95": [sr.ci_low, sr.ci_high],
-                "successes": sr.successes,
-                "n": sr.n,
-            },
-            "time_s": {**geometric(r.time_s), "censored": censoring(cfg, r)},
-            "cosine_distance": {
-                "definition": COSINE_DEFINITION,
-                **geometric(r.cosine_sum),
-                "per_action_mean": {"label": PER_ACTION_LABEL, **_mean_ci(r.cosine_mean)},
-                "actions": int(r.n_actions.sum()),
-                "skipped_idle": int(r.n_idle.sum()),
-            },
-            "agreement": {**geometric(r.agreement), "skipped_idle": int(r.n_idle.sum())},
+            **{m.summary_key: _metric_summary(cfg, m, r) for m in table()},
             "by_phase": {
                 "edges": PHASE_EDGES.tolist(),
                 "cosine_distance": _ratio(*r.phase_cos.sum(0)),
@@ -260,14 +247,39 @@ def _run_summary(r: ModeResult, rows: NDArray[np.bool_]) -> dict[str, float]:
     }
 
 
-COSINE_DEFINITION = (
-    "the paper's: per trajectory, the SUM over its actions of 1 - U_h.U_out / (|U_h||U_out|), "
-    "idle actions (|U_h| or |U_out| <= 1e-9) skipped; over trajectories its geometric mean"
-)
-PER_ACTION_LABEL = (
-    "LABELLED VARIANT: per trajectory the mean per counted action (the sum divided by the "
-    "actions), mean over trajectories; not the paper's definition"
-)
+def _metric_summary(cfg: SimConfig, m: Metric, r: ModeResult) -> dict[str, Any]:
+    """One mode's summary of the metric `m` over its trajectories (app/study/metric_table.py):
+    a rate's Laplace estimate with its interval; otherwise the paper's Table I statistic, the
+    geometric mean (`geometric`), with the metric's definition, its labelled variant and the
+    study's own details of a known metric (`_DETAILS`)."""
+    x = r.values[m.name]
+    if m.scale == "rate":
+        sr = metrics.success_rate(int(x.sum()), int(x.size))
+        return {
+            "estimate": sr.laplace,
+            "ci95": [sr.ci_low, sr.ci_high],
+            "successes": sr.successes,
+            "n": sr.n,
+        }
+    out: dict[str, Any] = {"definition": m.about} if m.about else {}
+    out.update(geometric(x))
+    if m.variant is not None:
+        out[m.variant.suffix] = {"label": m.variant.label, **_mean_ci(r.values[variant_key(m)])}
+    details = _DETAILS.get(m.name)
+    if details is not None:
+        out.update(details(cfg, r))
+    return out
+
+
+#: The study's own details of the paper's metrics, beside their statistics in summary.json.
+_DETAILS: dict[str, Callable[[SimConfig, ModeResult], dict[str, Any]]] = {
+    "time_s": lambda cfg, r: {"censored": censoring(cfg, r)},
+    "cosine_distance": lambda cfg, r: {
+        "actions": int(r.n_actions.sum()),
+        "skipped_idle": int(r.n_idle.sum()),
+    },
+    "agreement": lambda cfg, r: {"skipped_idle": int(r.n_idle.sum())},
+}
 
 
 def geometric(x: Array) -> dict[str, Any]:
@@ -361,27 +373,33 @@ def fig8_divergences(
 
 
 def headline(r: ModeResult) -> dict[str, float]:
-    """The headline numbers of one mode over its trajectories, flat (for tuning and tables).
+    """The headline numbers of one mode over its trajectories, flat (for tuning and tables),
+    per metric of the table (app/study/metric_table.py) in tuning's order, then `gave_up`.
 
-    Keys: `success` (Laplace estimate) with `successes`, `n` and its adjusted-Wald interval
-    `success_ci_low`/`_high`; `agreement` and `cosine_distance` (means over trajectories, nan
-    without any) with the half-widths of their 95 % t intervals (`*_ci_half`); `time_s` (the
-    geometric mean [s]) and `gave_up` (the share of trials the operator gave up).
+    Keys of a rate (`success`): its Laplace estimate under its name, its count
+    (`successes`), `n` and its adjusted-Wald interval (`success_ci_low`/`_high`); of a log
+    metric (`time_s`): its geometric mean; of a linear one (`cosine_distance`, `agreement`):
+    the mean over trajectories of the value tuning optimises (the cosine distance per action,
+    `Metric.tune_variant`; nan without any) and the half-width of its 95 % t interval
+    (`<name>_ci_half`); `gave_up`: the share of trials the operator gave up.
     """
-    sr = metrics.success_rate(int(r.success.sum()), int(r.success.size))
-    out: dict[str, float] = {
-        "success": sr.laplace,
-        "successes": float(sr.successes),
-        "n": float(sr.n),
-        "success_ci_low": sr.ci_low,
-        "success_ci_high": sr.ci_high,
-    }
-    for name, x in (("agreement", r.agreement), ("cosine_distance", r.cosine_mean)):
-        m = _mean_ci(x)
-        lo, hi = m["ci95"]
-        out[name] = math.nan if m["mean"] is None else float(m["mean"])
-        out[f"{name}_ci_half"] = math.nan if lo is None else float(hi - lo) / 2.0
-    out["time_s"] = metrics.geometric_mean(r.time_s).mean
+    out: dict[str, float] = {}
+    for m in tuning_order():
+        x = r.values[tuning_key(m)]
+        if m.scale == "rate":
+            sr = metrics.success_rate(int(x.sum()), int(x.size))
+            out[m.name] = sr.laplace
+            out[m.count_key] = float(sr.successes)
+            out["n"] = float(sr.n)
+            out[f"{m.name}_ci_low"] = sr.ci_low
+            out[f"{m.name}_ci_high"] = sr.ci_high
+        elif m.scale == "log":
+            out[m.name] = metrics.geometric_mean(x).mean
+        else:
+            mc = _mean_ci(x)
+            lo, hi = mc["ci95"]
+            out[m.name] = math.nan if mc["mean"] is None else float(mc["mean"])
+            out[f"{m.name}_ci_half"] = math.nan if lo is None else float(hi - lo) / 2.0
     out["gave_up"] = float(r.gave_up.mean())
     return out
 
@@ -417,32 +435,38 @@ def _metric_variants(r: ModeResult) -> dict[str, Any]:
 
 
 def compare(a: ModeResult, b: ModeResult) -> dict[str, Any]:
-    """Tests between two modes on the same trajectories (a minus b in the statistics)."""
-    chi = metrics.n1_chi_squared(
-        int(a.success.sum()), a.success.size, int(b.success.sum()), b.success.size
-    )
+    """Tests between two modes on the same trajectories (a minus b in the statistics), per
+    metric of the table by its scale (a rate: the N-1 chi-squared and McNemar tests; a log
+    metric: two-sample and paired t tests of the logs; a linear one: of the values, and so
+    for its variant), then the paper's Fig. 5 remark (x added per y)."""
+    out: dict[str, Any] = {"statistics_are": "first minus second mode"}
+    for m in table():
+        x, y = a.values[m.name], b.values[m.name]
+        if m.scale == "rate":
+            chi = metrics.n1_chi_squared(int(x.sum()), x.size, int(y.sum()), y.size)
+            out[f"{m.test_key}_n1_chi2"] = dataclasses.asdict(chi)
+            out[f"{m.test_key}_mcnemar"] = dataclasses.asdict(metrics.mcnemar(x, y))
+            continue
+        out[m.test_key] = _t_tests(x, y, log=m.scale == "log")
+        if m.variant is not None:
+            key = variant_key(m)
+            out[key] = _t_tests(a.values[key], b.values[key], log=m.scale == "log")
+    out["x_per_y_while_operator_moves_y_only"] = _t_tests(x_per_y(a), x_per_y(b))
+    return out
 
-    def both(x: Array, y: Array) -> dict[str, Any]:
-        ok = np.isfinite(x) & np.isfinite(y)
+
+def _t_tests(x: Array, y: Array, log: bool = False) -> dict[str, Any]:
+    """Two-sample and paired t tests of x against y (of their logs with `log`; the pairs
+    with a value that is not finite left out)."""
+    if log:
         return {
-            "two_sample_t": dataclasses.asdict(metrics.t_test(x[ok], y[ok])),
-            "paired_t": dataclasses.asdict(metrics.paired_t_test(x[ok], y[ok])),
+            "two_sample_t": dataclasses.asdict(metrics.log_t_test(x, y)),
+            "paired_t": dataclasses.asdict(metrics.paired_t_test(np.log(x), np.log(y))),
         }
-
+    ok = np.isfinite(x) & np.isfinite(y)
     return {
-        "statistics_are": "first minus second mode",
-        "success_n1_chi2": dataclasses.asdict(chi),
-        "success_mcnemar": dataclasses.asdict(metrics.mcnemar(a.success, b.success)),
-        "log_time": {
-            "two_sample_t": dataclasses.asdict(metrics.log_t_test(a.time_s, b.time_s)),
-            "paired_t": dataclasses.asdict(
-                metrics.paired_t_test(np.log(a.time_s), np.log(b.time_s))
-            ),
-        },
-        "cosine_distance": both(a.cosine_sum, b.cosine_sum),
-        "cosine_distance_per_action_mean": both(a.cosine_mean, b.cosine_mean),
-        "agreement": both(a.agreement, b.agreement),
-        "x_per_y_while_operator_moves_y_only": both(x_per_y(a), x_per_y(b)),
+        "two_sample_t": dataclasses.asdict(metrics.t_test(x[ok], y[ok])),
+        "paired_t": dataclasses.asdict(metrics.paired_t_test(x[ok], y[ok])),
     }
 
 

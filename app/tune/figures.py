@@ -18,8 +18,9 @@ from typing import Any
 
 import numpy as np
 
+from dsteleop.app.study import metric_table
 from dsteleop.app.tune.driver import TrialRecord, TuneSettings
-from dsteleop.app.tune.objective import LABELS, MODE_METRICS, key
+from dsteleop.app.tune.objective import key
 
 DPI = 100
 SENSITIVITY = "sensitivity.png"
@@ -41,7 +42,8 @@ def write_sensitivity(
     """sensitivity.png (module docstring); returns its file name."""
     plt = _pyplot()
     done = [r for r in recs if r.state == "COMPLETE"]
-    rows = [(s, m) for s in settings.objective.sources for m in MODE_METRICS]
+    names = [m.name for m in metric_table.tuning_order()]
+    rows = [(s, m) for s in settings.objective.sources for m in names]
     dims = settings.space
     tuned = settings.mode
     fig, axes = plt.subplots(
@@ -86,7 +88,7 @@ def write_sensitivity(
             if i == len(rows) - 1:
                 ax.set_xlabel(f"{d.name} (dotted: base)")
             if j == 0:
-                ax.set_ylabel(f"{source}\n{LABELS[metric]}")
+                ax.set_ylabel(f"{source}\n{metric_table.metric(metric).heading}")
             ax.tick_params(labelsize=7)
     handles, labels = axes[0, 0].get_legend_handles_labels()
     if handles:
@@ -114,14 +116,15 @@ def write_heatmap(settings: TuneSettings, recs: Sequence[TrialRecord], out: Path
     dx, dy = settings.space
     tuned = settings.mode
     xs, ys = dx.grid(settings.grid_points), dy.grid(settings.grid_points)
-    rows = [(s, m) for s in settings.objective.sources for m in MODE_METRICS]
+    names = [m.name for m in metric_table.tuning_order()]
+    rows = [(s, m) for s in settings.objective.sources for m in names]
     fig, axes = plt.subplots(
-        len(settings.objective.sources), len(MODE_METRICS),
-        figsize=(3.6 * len(MODE_METRICS), 3.2 * len(settings.objective.sources) + 0.5),
+        len(settings.objective.sources), len(names),
+        figsize=(3.6 * len(names), 3.2 * len(settings.objective.sources) + 0.5),
         squeeze=False,
     )  # fmt: skip
     for k, (source, metric) in enumerate(rows):
-        ax = axes[k // len(MODE_METRICS), k % len(MODE_METRICS)]
+        ax = axes[k // len(names), k % len(names)]
         total = np.zeros((len(ys), len(xs)))
         count = np.zeros((len(ys), len(xs)))
         for r in done:
@@ -147,7 +150,7 @@ def write_heatmap(settings: TuneSettings, recs: Sequence[TrialRecord], out: Path
         ax.set_yticks(range(len(ys)), [f"{v:.3g}" for v in ys], fontsize=7)
         ax.set_xlabel(dx.name)
         ax.set_ylabel(dy.name)
-        ax.set_title(f"{source}: {LABELS[metric]}, {tuned} - S", fontsize=9)
+        ax.set_title(f"{source}: {metric_table.metric(metric).heading}, {tuned} - S", fontsize=9)
         fig.colorbar(im, ax=ax, shrink=0.8)
     fig.tight_layout()
     fig.savefig(out / HEATMAP, dpi=DPI)

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from dsteleop.app.study.metric_table import tuning_key, tuning_order
 from dsteleop.app.study.results import ModeResult, StudyResult, merge
 from dsteleop.app.study.summary import headline
 from dsteleop.app.tasks.executor import Executor, TaskError
@@ -132,18 +133,22 @@ def compare(
 
 
 def gains(a: ModeResult, b: ModeResult) -> dict[str, Any]:
-    """Paired differences a - b per metric over the same trajectories."""
-    out = {
-        "success": _diff(a.success.astype(np.float64), b.success.astype(np.float64)),
-        "agreement": _diff(a.agreement, b.agreement),
-        "cosine_distance": _diff(a.cosine_mean, b.cosine_mean),
-    }
-    d = metrics.paired_difference(np.log(a.time_s), np.log(b.time_s))
-    out["time_ratio"] = {
-        "mean": math.exp(d.mean),
-        "ci95": [math.exp(d.ci_low), math.exp(d.ci_high)],
-        "n": d.n,
-    }
+    """Paired differences a - b per metric of the table over the same trajectories, of the
+    values tuning optimises (`tuning_key`): a rate's or a linear metric's mean difference
+    with its t test; a log metric's as the ratio of geometric means (`<short>_ratio`)."""
+    out: dict[str, Any] = {}
+    for m in tuning_order():
+        k = tuning_key(m)
+        x, y = a.values[k].astype(np.float64), b.values[k].astype(np.float64)
+        if m.scale != "log":
+            out[m.name] = _diff(x, y)
+            continue
+        d = metrics.paired_difference(np.log(x), np.log(y))
+        out[f"{m.short or m.name}_ratio"] = {
+            "mean": math.exp(d.mean),
+            "ci95": [math.exp(d.ci_low), math.exp(d.ci_high)],
+            "n": d.n,
+        }
     return out
 
 

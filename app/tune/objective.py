@@ -7,10 +7,11 @@ and S paired:
                every trial): metrics over trajectories
     sessions   headless replays of recorded sessions: metrics over sessions
 
-Per source and mode the metrics are (docs/METHOD.md §7): `success` (the share of successful
-trials; `successes` and `n` beside it), `agreement` (the mean ratio of agreement),
-`cosine_distance` (the mean cosine distance per action) and `time_s` (the geometric mean
-time [s]).
+Per source and mode the metrics are those of the metric table (app/study/metric_table.py,
+docs/METHOD.md §7), summarised by their scale: `success` (the share of successful trials;
+`successes` and `n` beside it), `time_s` (the geometric mean time [s]), `cosine_distance`
+(on the study the mean cosine distance per action) and `agreement` (the mean ratio of
+agreement); a metric registered in the table is one more.
 
 The objective (the default: maximise DS's ratio of agreement; M is the tuned mode):
 
@@ -28,29 +29,14 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Literal
 
+from dsteleop.app.study import metric_table
 from dsteleop.arbitration import Mode
 from dsteleop.errors import ConfigError
 
 Source = Literal["study", "sessions"]
-Metric = Literal["agreement", "cosine_distance", "time_s", "success"]
 ObjectiveKind = Literal["study", "sessions", "both"]
 
 OBJECTIVES: tuple[str, ...] = ("study", "sessions", "both")
-METRICS: tuple[str, ...] = ("agreement", "cosine_distance", "time_s", "success")
-#: Every per-mode metric a trial reports, in report order.
-MODE_METRICS: tuple[str, ...] = ("success", "agreement", "cosine_distance", "time_s")
-MAXIMISE: Mapping[str, bool] = {
-    "agreement": True,
-    "success": True,
-    "cosine_distance": False,
-    "time_s": False,
-}
-LABELS: Mapping[str, str] = {
-    "agreement": "ratio of agreement",
-    "success": "success rate",
-    "cosine_distance": "cosine distance",
-    "time_s": "time [s]",
-}
 
 
 def key(source: str, mode: str, metric: str) -> str:
@@ -70,7 +56,7 @@ class Objective:
     """
 
     kind: ObjectiveKind = "study"
-    metric: Metric = "agreement"
+    metric: str = "agreement"
     constrained: bool = True
     mode: str = "DS"
 
@@ -79,8 +65,7 @@ class Objective:
             raise ConfigError(
                 f"unknown objective {self.kind!r} (choose from {', '.join(OBJECTIVES)})"
             )
-        if self.metric not in METRICS:
-            raise ConfigError(f"unknown metric {self.metric!r} (choose from {', '.join(METRICS)})")
+        metric_table.metric(self.metric)  # an unknown one: ConfigError naming the table's
         if Mode.parse(self.mode).value != self.mode:
             raise ConfigError(f"mode {self.mode!r}: write it {Mode.parse(self.mode).value!r}")
         if self.mode == Mode.S.value:
@@ -96,7 +81,7 @@ class Objective:
 
     @property
     def maximise(self) -> bool:
-        return MAXIMISE[self.metric]
+        return metric_table.metric(self.metric).maximise
 
     @property
     def direction(self) -> Literal["maximize", "minimize"]:
@@ -112,7 +97,7 @@ class Objective:
             "the two, each weighing half)",
         }[self.kind]
         verb = "maximise" if self.maximise else "minimise"
-        text = f"{verb} {self.mode}'s {LABELS[self.metric]} on {where}"
+        text = f"{verb} {self.mode}'s {metric_table.metric(self.metric).heading} on {where}"
         if self.constrained:
             text += (
                 f", subject to {self.mode} succeeding at least as often as S on the same paired "

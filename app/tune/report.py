@@ -22,21 +22,30 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from dsteleop.app.study import metric_table
 from dsteleop.app.tune.driver import TrialRecord, TuneSettings
-from dsteleop.app.tune.objective import LABELS, MODE_METRICS
 from dsteleop.app.tune.trial import describe_world
 
 BEST_SCHEMA = "dsteleop.tune_best/1"
 SUMMARY_SCHEMA = "dsteleop.tune_summary/1"
-#: Per-mode metric keys in report order (the rest follow alphabetically).
-ORDER = (
-    "success", "successes", "n", "success_ci_low", "success_ci_high", "agreement",
-    "agreement_ci_half", "cosine_distance", "cosine_distance_ci_half", "time_s", "gave_up",
-)  # fmt: skip
+
+
+def order() -> tuple[str, ...]:
+    """Per-mode metric keys in report order: each metric in tuning's order with its count and
+    interval (`app.study.summary.headline`), then `gave_up` (the rest follow alphabetically)."""
+    out: list[str] = []
+    for m in metric_table.tuning_order():
+        out.append(m.name)
+        if m.scale == "rate":
+            out += [m.count_key, "n", f"{m.name}_ci_low", f"{m.name}_ci_high"]
+        elif m.scale == "linear":
+            out.append(f"{m.name}_ci_half")
+    return (*out, "gave_up")
 
 
 def metric_columns(recs: Sequence[TrialRecord]) -> list[str]:
     names = {k for r in recs for k in r.metrics}
+    keys = order()
 
     def rank(k: str) -> tuple[int, int, int, str]:
         parts = k.split(".")
@@ -44,7 +53,7 @@ def metric_columns(recs: Sequence[TrialRecord]) -> list[str]:
         if len(parts) == 2:  # <source>.seconds
             return (source, 9, 0, k)
         mode = 0 if parts[1] == "S" else 1  # then the tuned mode
-        m = ORDER.index(parts[2]) if parts[2] in ORDER else len(ORDER)
+        m = keys.index(parts[2]) if parts[2] in keys else len(keys)
         return (source, mode, m, k)
 
     return sorted(names, key=rank)
@@ -137,7 +146,8 @@ def _ci(d: Mapping[str, Any], digits: int = 3) -> str:
 
 def power(settings: TuneSettings, recs: Sequence[TrialRecord]) -> dict[str, Any]:
     """The tuning batch's resolution: the median over complete trials of the 95 % interval
-    half-widths of the tuned mode's agreement and cosine distance and of its success rate."""
+    half-width of each of the tuned mode's metrics that has one (a rate, a linear metric:
+    `<name>_ci_half`)."""
     done = [r for r in recs if r.state == "COMPLETE"]
     if settings.batch is None or not done:
         return {}
@@ -147,14 +157,15 @@ def power(settings: TuneSettings, recs: Sequence[TrialRecord]) -> dict[str, Any]
         xs = [x for x in xs if math.isfinite(x)]
         return statistics.median(xs) if xs else None
 
-    m = settings.mode
-    lo, hi = med(f"study.{m}.success_ci_low"), med(f"study.{m}.success_ci_high")
-    return {
-        "trajectories": settings.batch.trajectories,
-        "agreement_ci_half": med(f"study.{m}.agreement_ci_half"),
-        "cosine_distance_ci_half": med(f"study.{m}.cosine_distance_ci_half"),
-        "success_ci_half": None if lo is None or hi is None else (hi - lo) / 2.0,
-    }
+    mode = settings.mode
+    out: dict[str, Any] = {"trajectories": settings.batch.trajectories}
+    for m in _intervals_first():
+        if m.scale == "rate":
+            lo, hi = med(f"study.{mode}.{m.name}_ci_low"), med(f"study.{mode}.{m.name}_ci_high")
+            out[f"{m.name}_ci_half"] = None if lo is None or hi is None else (hi - lo) / 2.0
+        elif m.scale == "linear":
+            out[f"{m.name}_ci_half"] = med(f"study.{mode}.{m.name}_ci_half")
+    return out
 
 
 def markdown(summary: Mapping[str, Any]) -> str:
@@ -251,12 +262,10 @@ def markdown(summary: Mapping[str, Any]) -> str:
             "## Resolution of a trial",
             "",
             f"A trial scores {mode} on {pw['trajectories']} trajectories: the median 95 % "
-            f"interval half-width over trials is +-{_fmt(pw['agreement_ci_half'])} for the "
-            f"ratio of agreement, +-{_fmt(pw['cosine_distance_ci_half'])} for the cosine "
-            f"distance and +-{_fmt(pw['success_ci_half'])} for the success rate. Trials share "
-            "their trajectories, so differences between configurations are paired and finer "
-            "than these intervals; a difference much smaller than them is still within what "
-            "a different batch of trajectories could change.",
+            f"interval half-width over trials is {_widths(pw)}. Trials share their "
+            "trajectories, so differences between configurations are paired and finer than "
+            "these intervals; a difference much smaller than them is still within what a "
+            "different batch of trajectories could change.",
         ]
     failed = summary["trials"]["errors"]
     if failed:
@@ -276,6 +285,21 @@ def markdown(summary: Mapping[str, Any]) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _intervals_first() -> list[metric_table.Metric]:
+    """The metrics in tuning's order, those with a t interval (linear) before the rates."""
+    return sorted(metric_table.tuning_order(), key=lambda m: m.scale == "rate")
+
+
+def _widths(pw: Mapping[str, Any]) -> str:
+    """`power`'s half-widths in words: "+-x for the success rate, ... and +-z for the ..."."""
+    parts = [
+        f"+-{_fmt(pw[f'{m.name}_ci_half'])} for the {m.label}"
+        for m in _intervals_first()
+        if f"{m.name}_ci_half" in pw
+    ]
+    return parts[0] if len(parts) == 1 else ", ".join(parts[:-1]) + " and " + parts[-1]
 
 
 def _edges_md(summary: Mapping[str, Any]) -> list[str]:
@@ -327,13 +351,24 @@ def _edges_md(summary: Mapping[str, Any]) -> list[str]:
 
 
 def _mode_table(metrics: Mapping[str, float], sources: Sequence[str], tuned: str) -> list[str]:
-    rows = ["| source | mode | " + " | ".join(LABELS[m] for m in MODE_METRICS) + " |"]
-    rows.append("| --- | --- |" + " --- |" * len(MODE_METRICS))
+    table = metric_table.tuning_order()
+    rows = ["| source | mode | " + " | ".join(m.heading for m in table) + " |"]
+    rows.append("| --- | --- |" + " --- |" * len(table))
     for s in sources:
         for mode in ("S", tuned):
-            vals = [_fmt(metrics.get(f"{s}.{mode}.{m}")) for m in MODE_METRICS]
+            vals = [_fmt(metrics.get(f"{s}.{mode}.{m.name}")) for m in table]
             rows.append(f"| {s} | {mode} | " + " | ".join(vals) + " |")
     return rows
+
+
+def _holdout_cell(m: metric_table.Metric, v: Mapping[str, Any]) -> str:
+    """One metric of one configuration and mode on held-out data (`headline`'s numbers)."""
+    if m.scale == "rate":
+        lo, hi = v[f"{m.name}_ci_low"], v[f"{m.name}_ci_high"]
+        return f"{_fmt(v[m.name])} [{_fmt(lo)}, {_fmt(hi)}]"
+    if m.scale == "log":
+        return _fmt(v[m.name], 2)
+    return f"{_fmt(v[m.name])} +- {_fmt(v[f'{m.name}_ci_half'])}"
 
 
 def _holdout_md(h: Mapping[str, Any] | None, tuned: str) -> list[str]:
@@ -359,20 +394,18 @@ def _holdout_md(h: Mapping[str, Any] | None, tuned: str) -> list[str]:
             f"the closed-loop study (seed {s['seed']}; {seen}), S and {tuned} paired; 95 % "
             "intervals:"
         )
+        table = metric_table.tuning_order()
         out += [
             "",
-            "| configuration | mode | success | ratio of agreement | cosine distance | time [s] |",
-            "| --- | --- | --- | --- | --- | --- |",
+            "| configuration | mode | "
+            + " | ".join(m.name if m.scale == "rate" else m.heading for m in table)
+            + " |",
+            "| --- | --- |" + " --- |" * len(table),
         ]
         for name in ("base", "best"):
             for mode in ("S", tuned):
-                m = s[name][mode]
-                out.append(
-                    f"| {name} | {mode} | {_fmt(m['success'])} [{_fmt(m['success_ci_low'])}, "
-                    f"{_fmt(m['success_ci_high'])}] | {_fmt(m['agreement'])} "
-                    f"+- {_fmt(m['agreement_ci_half'])} | {_fmt(m['cosine_distance'])} "
-                    f"+- {_fmt(m['cosine_distance_ci_half'])} | {_fmt(m['time_s'], 2)} |"
-                )
+                cells = [_holdout_cell(m, s[name][mode]) for m in table]
+                out.append(f"| {name} | {mode} | " + " | ".join(cells) + " |")
         g = s[f"gain_{tuned}"]
         out += [
             "",
@@ -382,12 +415,14 @@ def _holdout_md(h: Mapping[str, Any] | None, tuned: str) -> list[str]:
             "",
             "| metric | best - base | p |",
             "| --- | --- | --- |",
-            f"| success (share) | {_ci(g['success'])} | {_p(g['success']['p_value'])} |",
-            f"| ratio of agreement | {_ci(g['agreement'])} | {_p(g['agreement']['p_value'])} |",
-            f"| cosine distance | {_ci(g['cosine_distance'])} | "
-            f"{_p(g['cosine_distance']['p_value'])} |",
-            f"| time (ratio of geometric means) | {_ci(g['time_ratio'])} | |",
         ]
+        for m in table:
+            if m.scale == "log":
+                ratio = g[f"{m.short or m.name}_ratio"]
+                out.append(f"| {m.short or m.name} (ratio of geometric means) | {_ci(ratio)} | |")
+            else:
+                what = f"{m.name} (share)" if m.scale == "rate" else m.label
+                out.append(f"| {what} | {_ci(g[m.name])} | {_p(g[m.name]['p_value'])} |")
         c = s[f"tuned_{tuned}_vs_S"]
         out += [
             "",

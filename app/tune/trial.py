@@ -29,13 +29,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from dsteleop.app.study import metric_table
 from dsteleop.app.study.batch import run_chunk
 from dsteleop.app.study.grasps import Grasps
+from dsteleop.app.study.metric_table import Metric
 from dsteleop.app.study.objects import Objects
 from dsteleop.app.study.planar import SimConfig
 from dsteleop.app.study.results import ChunkResult
 from dsteleop.app.study.summary import headline
-from dsteleop.app.tune.objective import MODE_METRICS, key
+from dsteleop.app.tune.objective import key
 from dsteleop.arbitration import ArbitrationConfig, Mode
 from dsteleop.errors import ConfigError, InputError
 
@@ -226,15 +228,33 @@ def _replay(folder: Path, mode: Mode, config: ArbitrationConfig) -> dict[str, An
     return core.session_summary(session.name, trace.recorded_s, [trace])
 
 
+def _session_values(metric: Metric, a: Mapping[str, Any]) -> dict[str, float]:
+    """One metric's values over sessions from `dsteleop replay`'s aggregate of one mode `a`
+    (`app.replay.core.aggregate`): a rate's Laplace estimate, its count and n; a log
+    metric's geometric mean; a linear one's Table I statistic (the geometric mean over
+    sessions); nan where there is none."""
+    if metric.scale == "rate":
+        sr = a[metric.summary_key]
+        return {
+            metric.name: sr["laplace"] if sr else math.nan,
+            metric.count_key: float(sr["successes"]) if sr else 0.0,
+            "n": float(a["n"]),
+        }
+    if metric.scale == "log":
+        gm = a[metric.name]
+        return {metric.name: _num(gm["mean"]) if gm else math.nan}
+    return {metric.name: _num(a[metric.name])}
+
+
 def sessions_metrics(runs: Sequence[Mapping[str, Any]], mode: str = "DS") -> dict[str, float]:
     """The sessions' metrics of one trial from its replays (`session_task` results, any
     order): per mode (S and the tuned `mode`), over sessions, as `dsteleop replay` aggregates
     them.
 
     Returns:
-        `sessions.<MODE>.<metric>` for success (Laplace), successes, n, agreement,
-        cosine_distance (means over sessions) and time_s (geometric mean [s]), and
-        `sessions.seconds`, the replays' summed time [s].
+        `sessions.<MODE>.<metric>` per metric of the table (`_session_values`: success as a
+        Laplace estimate with successes and n, time_s, cosine_distance and agreement as
+        geometric means over sessions), and `sessions.seconds`, the replays' summed time [s].
     """
     from dsteleop.app.replay.core import aggregate
 
@@ -250,17 +270,9 @@ def sessions_metrics(runs: Sequence[Mapping[str, Any]], mode: str = "DS") -> dic
     out: dict[str, float] = {}
     for m in modes:
         a = agg[m.value]
-        sr, gm = a["success_rate"], a["time_s"]
-        values = {
-            "success": sr["laplace"] if sr else math.nan,
-            "successes": float(sr["successes"]) if sr else 0.0,
-            "n": float(a["n"]),
-            "agreement": _num(a["agreement"]),
-            "cosine_distance": _num(a["cosine_distance"]),
-            "time_s": _num(gm["mean"]) if gm else math.nan,
-        }
-        for name in ("successes", "n", *MODE_METRICS):
-            out[key("sessions", m.value, name)] = values[name]
+        for metric in metric_table.tuning_order():
+            for name, v in _session_values(metric, a).items():
+                out[key("sessions", m.value, name)] = v
     out["sessions.seconds"] = float(sum(r.get("seconds", 0.0) for r in runs))
     return out
 
