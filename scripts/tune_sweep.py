@@ -53,6 +53,7 @@ from dsteleop.app.study.sweep import (
     default_grid,
     design_cells,
 )
+from dsteleop.arbitration import ArbitrationConfig
 
 #: The tune options that set a cell's world, in `AXES` order (app/cli/world_options.py).
 WORLD_OPTIONS: tuple[str, ...] = ("--goal-sigma", "--delay", "--depth-sigma")
@@ -145,10 +146,24 @@ def cell_file(
     cell: Sequence[float], bests: dict[str, dict[str, Any]], world_name: str = "wrong-goal"
 ) -> dict[str, Any]:
     """OUT/<cell>.json: the merged arbitration, and per mode what tune found (a `--config`
-    file: `read_config_file` ignores `objective` and `note`)."""
+    file: `read_config_file` ignores `objective` and `note`). Where modes tuned a field they
+    share to different values (DS's and DSC's kappa, p, q, b, window: fields of the one
+    configuration), the arbitration is their common base with those fields at their defaults,
+    and a `modes` section holds each tuned mode's own arbitration (`dsteleop sim` runs each
+    mode with its own, `SimConfig.mode_arbitration`)."""
     world = dict(zip(axes_of(study(world_name)).values(), map(float, cell), strict=True))
-    return {
-        "arbitration": merge_best(bests),
+    own: dict[str, Any] | None = None
+    clash = clashing(bests)
+    if clash:
+        merged = merge_best({m: _untuned(b, clash) for m, b in bests.items()})  # one base
+        defaults = ArbitrationConfig().to_dict()
+        first, *_ = bests.values()
+        arbitration = {k: defaults[k] if k in clash else merged[k] for k in first["arbitration"]}
+        own = {m: dict(b["arbitration"]) for m, b in bests.items()}
+    else:
+        arbitration = merge_best(bests)
+    out: dict[str, Any] = {
+        "arbitration": arbitration,
         "objective": {
             m: {k: b["objective"].get(k) for k in ("statement", "trial", "value", "params")}
             for m, b in bests.items()
@@ -156,6 +171,28 @@ def cell_file(
         "note": f"tuned by scripts/tune_sweep.py for the sweep's cell {cell_name(cell)} "
         f"({json.dumps(world)}) on tuning trajectories of seed 0",
     }
+    if own is not None:
+        out["modes"] = own
+    return out
+
+
+def clashing(bests: dict[str, dict[str, Any]]) -> set[str]:
+    """The fields two or more modes tuned to different values."""
+    seen: dict[str, Any] = {}
+    out: set[str] = set()
+    for best in bests.values():
+        for k, v in best.get("objective", {}).get("params", {}).items():
+            if k in seen and seen[k] != v:
+                out.add(k)
+            seen.setdefault(k, v)
+    return out
+
+
+def _untuned(best: dict[str, Any], fields: set[str]) -> dict[str, Any]:
+    """A best.json with `fields` left out of what it tuned (and out of its arbitration)."""
+    params = {k: v for k, v in best["objective"]["params"].items() if k not in fields}
+    arb = {k: v for k, v in best["arbitration"].items() if k not in fields}
+    return {**best, "arbitration": arb, "objective": {**best["objective"], "params": params}}
 
 
 def readme(commands: list[str], args: argparse.Namespace, n_cells: int, seconds: float) -> str:

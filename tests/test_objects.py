@@ -5,6 +5,7 @@ the study's world as rates over seeds, the study's outcome structure, and bad in
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -18,7 +19,7 @@ from dsteleop.app.study import report, results, summary, sweep
 from dsteleop.app.study.batch import run_chunk
 from dsteleop.app.study.inference import RowBeliefs, draw_runs, map_stats
 from dsteleop.app.study.objects import Objects
-from dsteleop.arbitration import Mode
+from dsteleop.arbitration import ArbitrationConfig, Mode
 from dsteleop.arbitration.belief import BeliefParams
 from dsteleop.arbitration.se3 import stack
 from dsteleop.errors import ConfigError
@@ -337,3 +338,76 @@ def test_the_objects_world_sweeps_the_perception_error_and_the_number_of_objects
         sweep.parse_grid(["objects=2.5"], cfg)
     with pytest.raises(ConfigError, match=r"AXIS one of goal, delay, depth$"):
         sweep.parse_grid(["objects=2"])
+
+
+# --- modes tuned apart: each with its own configuration -----------------------------------------
+
+
+def test_a_mode_with_its_own_configuration_runs_as_it_would_alone() -> None:
+    """DSC and DS tune fields they share (kappa, window, ...): with `mode_arbitration` each
+    mode runs with its own, and gives what it gives alone with that configuration, on the
+    same people; the others run with the study's. A configuration that would change the
+    people (their speed caps) or the belief is refused."""
+    own = ArbitrationConfig.from_dict({"kappa": 20.0, "window": 2, "DS.cap_translation": 0.3})
+    cfg = objects_config(4, attempts=2, modes=(Mode.S, Mode.DS, Mode.DSC))
+    mixed = run_chunk(dataclasses.replace(cfg, mode_arbitration=((Mode.DS, own),)), range(4))
+    alone = run_chunk(dataclasses.replace(cfg, arbitration=own, modes=(Mode.DS,)), range(4))
+    plain = run_chunk(cfg, range(4))
+    for f in ("success", "time_s", "final", "map_final"):
+        np.testing.assert_array_equal(getattr(mixed.modes["DS"], f), getattr(alone.modes["DS"], f))
+        np.testing.assert_array_equal(getattr(mixed.modes["S"], f), getattr(plain.modes["S"], f))
+        np.testing.assert_array_equal(
+            getattr(mixed.modes["DSC"], f), getattr(plain.modes["DSC"], f)
+        )
+    assert not np.array_equal(mixed.modes["DS"].final, plain.modes["DS"].final)
+    for change in ({"v_max_mps": 0.3}, {"belief.beta": 2.0}):
+        other = ArbitrationConfig.from_dict(change)
+        with pytest.raises(ConfigError, match="every mode must meet the same"):
+            dataclasses.replace(cfg, mode_arbitration=((Mode.DS, other),))
+
+
+def test_tune_sweep_gives_modes_that_tuned_a_shared_field_their_own_configuration() -> None:
+    """scripts/tune_sweep.py's cell file: where DS and DSC tuned kappa to different values,
+    the shared arbitration keeps kappa's default and a `modes` section holds each mode's own;
+    `dsteleop sim --config` reads it into `SimConfig.mode_arbitration`."""
+    from tests.test_sweep import _tune_sweep
+
+    ts = _tune_sweep()
+    base = ArbitrationConfig().to_dict()
+
+    def best(mode: str, **params: float) -> dict[str, object]:
+        return {"arbitration": {**base, **params}, "objective": {"params": params}}
+
+    bests = {"DSC": best("DSC", kappa=2.0, **{"DSC.power": 0.5}), "DS": best("DS", kappa=30.0)}
+    cell = (0.0, 0.2, 0.015, 0.02, 3.0)
+    out = ts.cell_file(cell, bests, "objects")
+    assert ts.clashing(bests) == {"kappa"}
+    assert out["arbitration"]["kappa"] == base["kappa"]
+    assert out["arbitration"]["DSC.power"] == 0.5
+    assert out["modes"]["DS"]["kappa"] == 30.0 and out["modes"]["DSC"]["kappa"] == 2.0
+    assert "modes" not in ts.cell_file(cell, {"DS": best("DS", kappa=30.0)}, "objects")
+
+
+@pytest.mark.parametrize(
+    ("modes", "match"),
+    [
+        ({"XX": {}}, "modes.XX: unknown mode"),
+        ({"DS": {"kappa": -1}}, "modes.DS: "),
+        ({"DS": 3}, "`modes` must map each mode"),
+        ({"DS": {"v_max_mps": 0.3}}, "every mode must meet the same"),
+    ],
+)
+def test_a_bad_modes_section_is_one_line_and_exit_2(
+    modes: dict[str, object], match: str, tmp_path: object, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import json
+    from pathlib import Path
+
+    path = Path(str(tmp_path)) / "c.json"
+    path.write_text(json.dumps({"arbitration": {}, "modes": modes}), encoding="utf-8")
+    rc = main(
+        ["sim", "--no-progress", "--world", "objects", "--trajectories", "2", "--config",
+         str(path), "--out", f"{tmp_path}/o"]
+    )  # fmt: skip
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and match in err[0], err

@@ -79,10 +79,11 @@ def add_config_options(parser: argparse.ArgumentParser) -> None:
 
 
 def read_config_file(
-    path: Path | None, option: str = "--config"
+    path: Path | None, option: str = "--config", sections: tuple[str, ...] = ()
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """(arbitration fields, loop fields) of a --config file (module docstring); `option`
-    names the option the file came from in the one-line errors."""
+    names the option the file came from in the one-line errors; `sections` are more sections
+    the command reads itself (the study's per-mode `modes`), passed over here."""
     if path is None:
         return {}, {}
     try:
@@ -95,7 +96,9 @@ def read_config_file(
         raise ConfigError(f"{option} {path}: expected a JSON object")
     if "arbitration" in data or "loop" in data:
         extra = sorted(
-            set(data) - {"arbitration", "loop"} - {"objective", "world", "note", "schema"}
+            set(data)
+            - {"arbitration", "loop", *sections}
+            - {"objective", "world", "note", "schema"}
         )
         if extra:
             raise ConfigError(f"{option} {path}: unknown section(s): {', '.join(extra)}")
@@ -154,10 +157,13 @@ def arbitration_config(args: argparse.Namespace) -> ArbitrationConfig:
     return configuration(args.config, args.param).arbitration
 
 
-def configuration(path: Path | None, params: list[str], option: str = "--config") -> Configuration:
+def configuration(
+    path: Path | None, params: list[str], option: str = "--config", sections: tuple[str, ...] = ()
+) -> Configuration:
     """The configuration of the file `path` (`read_config_file`; None: the defaults) with
-    the `--param` items `params` on top; `option` names the file's option in the errors."""
-    arb, loop = read_config_file(path, option)
+    the `--param` items `params` on top; `option` names the file's option in the errors;
+    `sections` as `read_config_file`'s."""
+    arb, loop = read_config_file(path, option, sections)
     try:
         cfg = ArbitrationConfig.from_dict({**arb, **parse_params(params)})
         loop_cfg = LoopConfig.from_dict(loop, arbitration=cfg)
@@ -172,10 +178,10 @@ def configuration(path: Path | None, params: list[str], option: str = "--config"
 
 
 def config_from_file(
-    path: Path | None, params: list[str], option: str = "--config"
+    path: Path | None, params: list[str], option: str = "--config", sections: tuple[str, ...] = ()
 ) -> ArbitrationConfig:
-    """The arbitration configuration of `configuration(path, params, option)`."""
-    return configuration(path, params, option).arbitration
+    """The arbitration configuration of `configuration(path, params, option, sections)`."""
+    return configuration(path, params, option, sections).arbitration
 
 
 def add_video_options(parser: argparse.ArgumentParser) -> None:

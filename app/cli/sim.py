@@ -26,11 +26,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from dsteleop.app.cli.options import add_config_options, arbitration_config, config_from_file
+from dsteleop.app.cli.options import add_config_options, config_from_file, parse_params
 from dsteleop.app.cli.world_options import add_world_arguments, world_overrides
 from dsteleop.app.outpaths import created_dir, output_dir
 from dsteleop.app.tasks.progress import Progress
-from dsteleop.arbitration import Mode, registered
+from dsteleop.arbitration import ArbitrationConfig, Mode, registered
 from dsteleop.errors import ConfigError, InputError
 
 log = logging.getLogger("dsteleop.sim")
@@ -173,7 +173,7 @@ def command(args: argparse.Namespace) -> SimCommand:
     )
     if args.cell_configs is not None and args.config is not None:
         raise ConfigError("--config and --cell-configs are mutually exclusive")
-    arb = arbitration_config(args)
+    arb, own = study_configuration(args.config, args.param)
     if args.operator not in OPERATORS:
         raise ConfigError(
             f"unknown operator {args.operator!r} (choose from {', '.join(OPERATORS)})"
@@ -213,6 +213,7 @@ def command(args: argparse.Namespace) -> SimCommand:
         modes=modes,
         example=args.example,
         arbitration=arb,
+        mode_arbitration=tuple((m, a) for m, a in own if m in modes),
         **extra,
     )
     design = args.sweep_design or "grid"
@@ -263,13 +264,43 @@ def read_cell_configs(
     out: dict[str, Any] = {}
     for name in names:
         path = folder / f"{name}.json"
-        arb = config_from_file(path, params, "--cell-configs")
+        arb, own = study_configuration(path, params, "--cell-configs")
         try:
             digest = hashlib.sha256(path.read_bytes()).hexdigest()
         except OSError as exc:
             raise InputError(f"--cell-configs {path}: {exc}") from None
-        out[name] = CellConfig(path, digest, arb)
+        out[name] = CellConfig(path, digest, arb, own)
     return out
+
+
+def study_configuration(
+    path: Path | None, params: list[str], option: str = "--config"
+) -> tuple[ArbitrationConfig, tuple[tuple[Mode, ArbitrationConfig], ...]]:
+    """The study's configuration of a `--config` file (options.py's reader, `--param` on
+    top) and its modes that run with their own (`SimConfig.mode_arbitration`): the file's
+    `modes` section, `{"MODE": {arbitration fields}, ...}` (scripts/tune_sweep.py writes it
+    for modes tuned apart that share fields), each over the file's arbitration, `--param` on
+    top of each."""
+    arb = config_from_file(path, params, option, sections=("modes",))
+    if path is None:
+        return arb, ()
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{option} {path}: {exc}") from None
+    section = data.get("modes", {}) if isinstance(data, dict) else {}
+    if not isinstance(section, dict) or not all(isinstance(v, dict) for v in section.values()):
+        raise ConfigError(f"{option} {path}: `modes` must map each mode to its fields")
+    base = data.get("arbitration", {}) if "arbitration" in data else {}
+    given = parse_params(params)
+    own: list[tuple[Mode, ArbitrationConfig]] = []
+    for name, fields in section.items():
+        try:
+            mode = Mode.parse(name)
+            own.append((mode, ArbitrationConfig.from_dict({**base, **fields, **given})))
+        except (ConfigError, TypeError) as exc:
+            raise ConfigError(f"{option} {path}: modes.{name}: {exc}") from None
+    return arb, tuple(own)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -15,6 +15,7 @@ from its earlier runs in that mode (`_history`).
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -69,11 +70,37 @@ def run_chunk(
     closed-loop operators of one trajectory are copies with the same seed) and the same goal
     noise, and the operators, the bookkeeping and the metrics are stepped once for all modes.
 
+    Modes that run with their own arbitration (`SimConfig.mode_arbitration`) are simulated
+    in a batch per configuration, each on the same people (a person's draws depend on its
+    seed alone), and their results joined in the study's mode order.
+
     Args:
         cfg: the study.
         indices: trajectory indices.
         on_progress: called with counts of trajectory-modes done (for a progress bar).
     """
+    groups = cfg.mode_groups()
+    if len(groups) == 1 and groups[0][0] == cfg.arbitration:
+        return _run_chunk(cfg, indices, on_progress)
+    parts = [
+        _run_chunk(
+            dataclasses.replace(cfg, arbitration=arb, modes=modes, mode_arbitration=()),
+            indices,
+            on_progress,
+        )
+        for arb, modes in groups
+    ]
+    joined = {k: v for p in parts for k, v in p.modes.items()}
+    modes = {m.value: joined[m.value] for m in cfg.modes}
+    first = modes[cfg.modes[0].value]
+    idx, lead = parts[0].indices, parts[0].lead
+    return ChunkResult(idx, first.lengths, lead, first.hand_hist, first.hand_paths, modes)
+
+
+def _run_chunk(
+    cfg: SimConfig, indices: Sequence[int], on_progress: Callable[[int], None] | None = None
+) -> ChunkResult:
+    """`run_chunk` for a study whose modes share one arbitration (`cfg.arbitration`)."""
     idx = np.asarray(indices, dtype=np.int64)
     ranges = hist_ranges(cfg)
     n_paths = int(np.clip(cfg.max_paths - idx[0], 0, len(idx))) if len(idx) else 0
@@ -163,7 +190,11 @@ class Example:
 
 
 def example(cfg: SimConfig, index: int, mode: Mode) -> Example:
-    """Run trajectory `index` under `mode` alone and keep every tick."""
+    """Run trajectory `index` under `mode` alone (with its own arbitration) and keep every
+    tick."""
+    cfg = dataclasses.replace(
+        cfg, arbitration=cfg.arbitration_of(mode), modes=(mode,), mode_arbitration=()
+    )
     goals, _, source = _hands_for(cfg, np.array([index]), 1)
     steps: list[ArbitrationStep] = []
     if isinstance(goals, ObjectRuns):  # the goal drawn: the object the person wants

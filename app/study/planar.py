@@ -152,6 +152,11 @@ class SimConfig:
             person wanting one and maybe changing its mind, the robot inferring which from
             the hand and perceiving them with its own error; closed loop only), or None: the
             robot is told its goal.
+        mode_arbitration: (mode, its own arbitration) pairs: such a mode runs with its own
+            configuration (modes tuned apart that share fields, DS's kappa and DSC's), the
+            others with `arbitration`; each must agree with `arbitration` on what the
+            simulated people and the belief read (`OPERATOR_FIELDS`, `belief`), so every
+            mode meets the same people. Empty: every mode runs with `arbitration`.
     """
 
     trajectories: int = 1000
@@ -182,6 +187,7 @@ class SimConfig:
     strategy: OperatorStrategy | None = None
     grasps: Grasps | None = None
     objects: Objects | None = None
+    mode_arbitration: tuple[tuple[Mode, ArbitrationConfig], ...] = ()
 
     def __post_init__(self) -> None:
         if isinstance(self.trajectories, bool) or not isinstance(self.trajectories, int):
@@ -239,6 +245,31 @@ class SimConfig:
                     f"belief.epsilon must be below 1/K = {1.0 / self.objects.count:.3g} for "
                     f"{self.objects.count} objects, got {self.arbitration.belief.epsilon!r}"
                 )
+        seen: set[Mode] = set()
+        for mode, arb in self.mode_arbitration:
+            if not isinstance(mode, Mode) or not isinstance(arb, ArbitrationConfig):
+                raise ConfigError(f"mode_arbitration holds (Mode, ArbitrationConfig): {mode!r}")
+            if mode in seen:
+                raise ConfigError(f"mode_arbitration: {mode.value} given twice")
+            seen.add(mode)
+            for name in (*OPERATOR_FIELDS, "belief"):
+                if getattr(arb, name) != getattr(self.arbitration, name):
+                    raise ConfigError(
+                        f"{mode.value}'s own configuration differs in {name}, which the "
+                        "simulated people or the belief read: every mode must meet the same"
+                    )
+
+    def arbitration_of(self, mode: Mode) -> ArbitrationConfig:
+        """The arbitration `mode` runs with: its own (`mode_arbitration`) or the study's."""
+        return dict(self.mode_arbitration).get(mode, self.arbitration)
+
+    def mode_groups(self) -> list[tuple[ArbitrationConfig, tuple[Mode, ...]]]:
+        """The study's modes grouped by the arbitration they run with, in mode order (one
+        group, every mode, when no mode has its own)."""
+        groups: dict[ArbitrationConfig, list[Mode]] = {}
+        for m in self.modes:
+            groups.setdefault(self.arbitration_of(m), []).append(m)
+        return [(arb, tuple(ms)) for arb, ms in groups.items()]
 
     @property
     def grasp_headings(self) -> tuple[float, ...]:
@@ -300,6 +331,10 @@ class SimConfig:
                 if v is None:  # the default world's summary stays as it was
                     continue
                 v = v.to_dict()
+            elif f.name == "mode_arbitration":
+                if not v:  # one configuration for every mode: as it was
+                    continue
+                v = {m.value: a.to_dict() for m, a in v}
             elif isinstance(v, tuple):
                 v = list(v)
             out[f.name] = v

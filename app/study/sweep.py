@@ -57,7 +57,7 @@ from dsteleop.app.study.planar import SimConfig
 from dsteleop.app.study.results import merge
 from dsteleop.app.study.summary import censored, versus
 from dsteleop.app.tasks.executor import Cluster, TaskError
-from dsteleop.arbitration import ArbitrationConfig, metrics
+from dsteleop.arbitration import ArbitrationConfig, Mode, metrics
 from dsteleop.errors import ConfigError, InputError
 
 SCHEMA = "dsteleop.sim_sweep/1"
@@ -231,11 +231,14 @@ class CellConfig:
         path: the file it was read from (DIR/<cell>.json).
         sha256: the hex SHA-256 of the file's bytes.
         arbitration: the arbitration it gives (with any `--param` on top).
+        mode_arbitration: the modes with their own arbitration in it (its `modes` section;
+            `SimConfig.mode_arbitration`).
     """
 
     path: Path
     sha256: str
     arbitration: ArbitrationConfig
+    mode_arbitration: tuple[tuple[Mode, ArbitrationConfig], ...] = ()
 
     def record(self) -> dict[str, str]:
         """What a cell's file and the summary record of it."""
@@ -246,7 +249,8 @@ def cell_study(cfg: SimConfig, name: str, configs: dict[str, CellConfig] | None)
     """The study of the cell `name`: `cfg`, with its own arbitration where `configs` has it."""
     if configs is None:
         return cfg
-    return dataclasses.replace(cfg, arbitration=configs[name].arbitration)
+    c = configs[name]
+    return dataclasses.replace(cfg, arbitration=c.arbitration, mode_arbitration=c.mode_arbitration)
 
 
 def with_world(cfg: SimConfig, cell: Sequence[float]) -> SimConfig:
