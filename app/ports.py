@@ -321,8 +321,10 @@ class Task(Protocol):
         or once the task is done."""
         ...
 
-    def true_goals(self) -> tuple[HandState, HandState]:
-        """The true (pick, place) palm poses, open hand, as a person watching sees them."""
+    def true_goals(self, utensil: str | None = None) -> tuple[HandState, HandState]:
+        """The true (pick, place) palm poses, open hand, as a person watching sees them: the
+        pick of `utensil` (None: the task's; a person may want another one than the robot
+        was told, or change its mind)."""
         ...
 
     def update(self, state: RobotState) -> TaskStep:

@@ -319,10 +319,12 @@ class KitchenEnv:
         p_g, R_g = T_utensil_grasp(UTENSILS[name], desc.grasp_xyz_m, desc.grasp_depth_m)
         return p_u + R_u @ p_g, R_u @ R_g
 
-    def grasp_pose(self) -> tuple[Array, Array]:
-        """The palm pose that grasps the task's utensil where it is now (p [m], R): the
-        task's true pick goal until the utensil moves."""
-        return self._grasp_pose(self.task.utensil)
+    def grasp_pose(self, name: str | None = None) -> tuple[Array, Array]:
+        """The palm pose that grasps utensil `name` (None: the task's) where it is now (p [m],
+        R): the task's true pick goal until the utensil moves."""
+        if name is not None and name not in UTENSILS:
+            raise ConfigError(f"unknown utensil {name!r} (choose from {', '.join(UTENSIL_NAMES)})")
+        return self._grasp_pose(name or self.task.utensil)
 
     def utensil_pose(self, name: str | None = None) -> tuple[Array, Array]:
         """True pose (COM position [m], R) of a utensil (default: the task's)."""

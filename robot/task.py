@@ -48,6 +48,9 @@ from dsteleop.robot.perception import PerceptionError
 
 Array = NDArray[np.float64]
 
+#: What a robot not told its utensil is told instead (`--goal infer`, the page's menu).
+INFER = "infer"
+
 
 class Phase(str, enum.Enum):
     """Task phase."""

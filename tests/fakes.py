@@ -163,7 +163,7 @@ class FakeTask:
     def candidates(self) -> Candidates | None:
         return None
 
-    def true_goals(self) -> tuple[HandState, HandState]:
+    def true_goals(self, utensil: str | None = None) -> tuple[HandState, HandState]:
         return self.pick, self.place
 
     def update(self, robot: RobotState) -> TaskStep:

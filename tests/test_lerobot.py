@@ -118,6 +118,12 @@ def test_the_sample_sessions_export_to_the_v3_layout(samples_dataset: Path) -> N
         )
         # quaternions are unit (x, y, z, w)
         np.testing.assert_allclose(np.linalg.norm(state[:, 3:7], axis=1), 1.0, atol=1e-6)
+    # A robot told its goal is certain of it: the spoon while it picks, the bin after.
+    assert feats[layout.GOAL_BELIEF]["names"] == ["spoon", "spatula", "ladle", "bin"]
+    belief = np.array(data.column(layout.GOAL_BELIEF).to_pylist())
+    assert set(np.unique(belief)) <= {0.0, 1.0} and (belief.sum(1) == 1).all()
+    assert belief[0].tolist() == [1, 0, 0, 0] and belief[-1].tolist() == [0, 0, 0, 1]
+    assert (np.array(data.column(layout.GOAL_CONFIDENCE).to_pylist()) == 1).all()
     tasks = pq.read_table(samples_dataset / layout.TASKS)
     assert tasks.column("task").to_pylist() == ["pick up the spoon and put it in the bin"]
     stats = json.loads((samples_dataset / layout.STATS).read_text())
@@ -431,6 +437,38 @@ for k in range(int(sys.argv[2])):
     loop.tick(k / 30.0)
 built.close()
 """
+
+
+def test_a_robot_inferring_its_goal_records_its_belief_into_the_dataset(tmp_path: Path) -> None:
+    """`run --goal infer --record-lerobot`: each frame carries the belief over the utensils
+    (then the bin) and the confidence the session recorded; our check and our reader accept
+    it, and the dataset's tick records read back with their belief."""
+    out = tmp_path / "ds"
+    r = dsteleop(
+        "run", "--source", "demo", "--goal", "infer", "--utensil", "ladle", "--seed", "2",
+        "--record-lerobot", str(out),
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert problems(out) == []
+    info = json.loads((out / layout.INFO).read_text())
+    assert info["features"][layout.GOAL_BELIEF]["names"] == ["spoon", "spatula", "ladle", "bin"]
+    data = pq.read_table(out / "data/chunk-000/file-000.parquet")
+    belief = np.array(data.column(layout.GOAL_BELIEF).to_pylist())
+    conf = np.array(data.column(layout.GOAL_CONFIDENCE).to_pylist())
+    joint = np.array(data.column(layout.GOAL_CONFIDENCE_JOINT).to_pylist())
+    (view,) = read_dataset(out).sessions
+    names = ["spoon", "spatula", "ladle", "bin"]
+    assert len(view.records) == len(belief)
+    for k, rec in enumerate(view.records):
+        assert rec.belief is not None
+        want = np.zeros(4)
+        want[[names.index(n) for n in rec.belief.names]] = rec.belief.probability
+        np.testing.assert_allclose(belief[k], want, atol=1e-6)
+        np.testing.assert_allclose(conf[k], rec.belief.confidence, atol=1e-6)
+        assert joint[k] == pytest.approx(rec.belief.confidence_joint, abs=1e-6)
+    assert belief[:, :3].sum(1).max() == pytest.approx(1.0, abs=1e-6)  # the pick phase
+    assert belief[-1].tolist() == [0, 0, 0, 1]  # the place phase: the bin
+    assert (conf < 1).any()  # the utensils disagree along x, and the camera errs
 
 
 def test_a_live_dataset_holds_every_episode_of_the_session(tmp_path: Path) -> None:

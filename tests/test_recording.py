@@ -66,7 +66,7 @@ def test_session_files_and_metadata(ds_session: Path) -> None:
     s = read_session(ds_session)
     assert s.complete and not s.truncated
     meta = s.meta
-    assert meta["schema"] == SCHEMA == "dsteleop.session/4"
+    assert meta["schema"] == SCHEMA == "dsteleop.session/5"
     assert meta["loop"]["arbitration"]["kappa"] == 4.0
     assert meta["mode"] == "DS" and meta["dims"][:6] == ["x", "y", "z", "roll", "pitch", "yaw"]
     assert s.mode is Mode.DS and s.dims == tuple(meta["dims"])

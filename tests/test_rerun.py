@@ -215,6 +215,40 @@ def test_a_live_run_logs_every_tick_without_dropping(tmp_path: Path) -> None:
     assert any("/live/scene/robot/palm:" in c for c in cols)
 
 
+def test_a_live_run_inferring_its_goal_logs_its_belief_every_tick(tmp_path: Path) -> None:
+    """`run --goal infer --rerun`: the belief in each candidate and the confidence per
+    dimension, one row per tick; the probabilities of a tick's candidates sum to 1."""
+    out = tmp_path / "infer.rrd"
+    r = cli("run", "--source", "demo", "--goal", "infer", "--utensil", "spatula", "--seed", "1",
+            "--rerun", out, "--record", tmp_path / "s")  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    ticks = json.loads(r.stdout.strip().splitlines()[-1])["ticks"]
+    rec = load_recording(out)
+    # The live logger sends batches of ticks: a candidate's rows are those of the batches it
+    # was a candidate in (the bin's from the place phase on), NaN on its other ticks there.
+    total: dict[float, float] = {}
+    series = {}
+    for n in ("spoon", "spatula", "ladle", "bin"):
+        t, v = scalars(rec, layout.belief(layout.LIVE_ROOT, n))
+        series[n] = dict(zip(np.round(t, 6), v, strict=True))
+        for tk, vk in zip(np.round(t, 6), v, strict=True):
+            total[tk] = total.get(tk, 0.0) + (0.0 if np.isnan(vk) else vk)
+    assert len(total) == ticks
+    np.testing.assert_allclose(list(total.values()), 1.0, atol=1e-6)
+    session = read_session(tmp_path / "s")
+    t0 = session.records[0].t_s
+    for rcd in session.records:
+        got = series["spatula"].get(round(rcd.t_s - t0, 6))
+        want = rcd.belief.of("spatula") if rcd.belief else np.nan
+        if np.isnan(want):  # not a candidate then: no row, or NaN
+            assert got is None or np.isnan(got), (rcd.k, got)
+        else:
+            assert got is not None and abs(got - want) < 1e-9, (rcd.k, got, want)
+    for d in ("x", "yaw", "ring", "joint"):
+        _, c = scalars(rec, layout.confidence(layout.LIVE_ROOT, d))
+        assert len(c) == ticks and np.nanmin(c) >= 0.0 and np.nanmax(c) <= 1.0
+
+
 def test_a_session_of_the_first_format_replays_into_a_recording(tmp_path: Path) -> None:
     out = tmp_path / "old.rrd"
     r = cli("replay", GOLDEN_V1, "--as-recorded", "--out", tmp_path / "o", "--no-plots",

@@ -20,6 +20,7 @@ from dsteleop.app.ports import NO_HAND, HumanInput, PlantStep
 from dsteleop.app.session.reader import read_session
 from dsteleop.app.session.schema import (
     SCHEMA,
+    BeliefRecord,
     Status,
     TickRecord,
     decode,
@@ -111,6 +112,13 @@ def full_record(seed: int = 0) -> TickRecord:
         notes=("mode:S", 'params:{"kappa": 8.0}', "calibrate"),
         timing={"rate_hz": 30.0, "jitter_ms": 0.125, "tick_ms": 2.5, "overruns": 0.0},
         X_reset=_state(rng),
+        belief=BeliefRecord(
+            ("spoon", "spatula", "ladle"),
+            np.array([0.01, 0.2345678901234, 0.7554321098766]),
+            2,
+            rng.uniform(size=D),
+            float(rng.uniform()),
+        ),
     )
 
 
@@ -161,6 +169,13 @@ def assert_round_trip(r: TickRecord, back: TickRecord) -> None:
     assert_states_equal(back.X_next, r.X_next, rtol=1e-9)
     np.testing.assert_allclose(back.U_cmd, r.U_cmd, rtol=1e-9, atol=0)
     assert dict(back.timing) == dict(r.timing)
+    assert (back.belief is None) == (r.belief is None)
+    if r.belief is not None and back.belief is not None:
+        b, a = r.belief, back.belief
+        assert (a.names, a.map_index, a.map_name) == (b.names, b.map_index, b.map_name)
+        np.testing.assert_allclose(a.probability, b.probability, rtol=1e-9, atol=0)
+        np.testing.assert_allclose(a.confidence, b.confidence, rtol=1e-9, atol=0)
+        assert a.confidence_joint == pytest.approx(b.confidence_joint, rel=1e-9)
     assert (back.step is None) == (r.step is None)
     if r.step is not None and back.step is not None:
         for k in STEP_ARRAYS:
@@ -225,6 +240,22 @@ def test_a_tick_record_round_trips_through_a_session_folder(tmp_path: Path) -> N
         "time_s": 17.25,
         "utensil": "spoon",
     }
+
+
+def test_a_session_of_schema_4_reads_without_a_belief(tmp_path: Path) -> None:
+    """Sessions recorded before the belief (schema 4; a sample session of schema 3 relabelled:
+    3 and 4 differ only in the joints, which it has none of) still read: their ticks have
+    `belief` None."""
+    folder = tmp_path / "old"
+    shutil.copytree(RECORDINGS / "demo-DS-spoon", folder)
+    meta = json.loads((folder / META).read_text())
+    assert meta["schema"] == "dsteleop.session/3"
+    meta["schema"] = "dsteleop.session/4"
+    (folder / META).write_text(json.dumps(meta))
+    s = read_session(folder)
+    assert s.records and all(r.belief is None for r in s.records)
+    line = json.loads((folder / TICKS).read_text().splitlines()[0])
+    assert "belief" not in line
 
 
 def test_events_encode_and_decode_by_kind() -> None:

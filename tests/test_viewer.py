@@ -115,8 +115,31 @@ def busy_port() -> Iterator[int]:
 
 _ROW = re.compile(
     r'data-dim="([^"]+)" data-alpha="([^"]+)" data-ph="([^"]+)" data-pr="([^"]+)" '
-    r'data-b="([^"]+)">.*?style="width:([0-9.]+)%"'
+    r'data-b="([^"]+)" data-c="([^"]*)">.*?style="width:([0-9.]+)%"'
 )
+
+
+def test_the_belief_shows_one_bar_per_candidate_and_the_confidence_per_dimension(
+    records: list[TickRecord],
+) -> None:
+    """A robot that infers its goal: a bar per candidate (the MAP in bold), and each gauge's
+    last number its confidence in that dimension; a told goal: one line, and "-"."""
+    from dsteleop.app.session.schema import BeliefRecord
+    from dsteleop.app.viewer.panel import belief_html, gauges_html
+
+    rec = _tracking(records)
+    c = np.linspace(0.1, 1.0, len(rec.dims))
+    belief = BeliefRecord(("spoon", "spatula", "ladle"), np.array([0.2, 0.7, 0.1]), 1, c, 0.3)
+    inferred = dataclasses.replace(rec, belief=belief)
+    block = belief_html(inferred)
+    rows = re.findall(r'data-name="([^"]+)" data-p="([^"]+)" data-map="([01])"', block)
+    assert rows == [("spoon", "0.200", "0"), ("spatula", "0.700", "1"), ("ladle", "0.100", "0")]
+    assert 'data-map="spatula"' in block and "width:70.0%" in block
+    gauges = _ROW.findall(gauges_html(inferred, rec.step))
+    np.testing.assert_allclose([float(r[5]) for r in gauges], c, atol=5e-4)
+    told = belief_html(rec)
+    assert 'data-names=""' in told and "told its goal" in told
+    assert all(r[5] == "" for r in _ROW.findall(gauges_html(rec, rec.step)))
 
 
 def test_gauges_show_every_dimension_with_its_values(records: list[TickRecord]) -> None:
@@ -128,14 +151,15 @@ def test_gauges_show_every_dimension_with_its_values(records: list[TickRecord]) 
     rows = _ROW.findall(gauges_html(rec, step))
     assert [r[0] for r in rows] == list(rec.dims)
     assert len(rows) == 6 + 4
-    got = np.array([[float(v) for v in r[1:]] for r in rows])
+    assert all(r[5] == "" for r in rows)  # a told goal: no confidence
+    got = np.array([[float(v) for i, v in enumerate(r[1:]) if i != 4] for r in rows])
     want = np.stack([step.alpha, step.P_human, step.P_robot, step.B], axis=1)
     np.testing.assert_allclose(got[:, :4], want, atol=5e-4)
     np.testing.assert_allclose(got[:, 4], 100 * np.clip(step.alpha, 0, 1), atol=0.05)
     # Before the first arbitration the gauges show zeros, one row per dimension.
     empty = _ROW.findall(gauges_html(rec, None))
     assert [r[0] for r in empty] == list(rec.dims)
-    assert all(float(v) == 0.0 for r in empty for v in r[1:])
+    assert all(float(v) == 0.0 for r in empty for i, v in enumerate(r[1:]) if i != 4)
 
 
 def test_status_says_what_the_loop_does_and_why(records: list[TickRecord]) -> None:

@@ -559,3 +559,67 @@ def test_camera_panel_shows_the_videos_pixels(shared_data: Path, browser: Browse
     # What the page draws is the picture too (an element screenshot of the <img>).
     drawn = _decoded(png)
     assert drawn.std() > MIN_PICTURE_STD and _grey_fraction(drawn) < 0.05, drawn.std()
+
+
+def _box(page: Page, locator: Any) -> dict[str, float]:
+    """A locator's bounding box, read again while the element is being replaced (None)."""
+    for _ in range(40):
+        box = locator.bounding_box()
+        if box is not None:
+            return dict(box)
+        page.wait_for_timeout(50)
+    raise AssertionError(f"no bounding box for {locator}")
+
+
+def _belief(page: Page) -> dict[str, Any]:
+    return dict(
+        page.eval_on_selector(
+            ".dst-belief",
+            """e => ({...e.dataset, rows: [...e.querySelectorAll('.dst-belief-row')].map(
+                r => ({...r.dataset}))})""",
+        )
+    )
+
+
+def test_the_page_shows_the_belief_and_the_confidence_of_a_goal_it_infers(
+    browser: Browser,
+) -> None:
+    """`serve --goal infer`: one bar per utensil, their probabilities summing to 1 and none
+    below the floor, the MAP moving to the person's utensil (the ladle); each gauge's
+    confidence in [0, 1]; the Utensil menu offers infer, and telling the robot a utensil from
+    it (Reset task) replaces the bars by one line. At 1366 x 768 the belief is on screen,
+    inside the panel."""
+    with _serve("--source", "demo", "--goal", "infer", "--utensil", "ladle") as url:
+        page = _open(browser, url, *SMALL_WINDOW)
+        try:
+            _wait(lambda: _belief(page)["names"] == "spoon,spatula,ladle", 60.0, "the bars", page)
+            _wait(lambda: _belief(page)["map"] == "ladle", 60.0, "the MAP on the ladle", page)
+            b = _belief(page)
+            assert [r["name"] for r in b["rows"]] == ["spoon", "spatula", "ladle"]
+            p = [float(r["p"]) for r in b["rows"]]
+            assert sum(p) == pytest.approx(1.0, abs=2e-3) and min(p) >= 0.01 - 5e-4, p
+            assert [r["map"] for r in b["rows"]] == ["0", "0", "1"] and 0 <= float(b["cJoint"]) <= 1
+            conf = page.eval_on_selector_all(".dst-gauge", "els => els.map(e => e.dataset.c)")
+            assert len(conf) == len(DIMS) and all(0.0 <= float(c) <= 1.0 for c in conf), conf
+            # (The panel's HTML is replaced ten times a second: a box may be read mid-swap.)
+            block = page.locator(".dst-belief >> visible=true").first
+            _wait(lambda: _on_screen(page, block), 10.0, "the belief on screen", page)
+            panel = _box(page, page.locator(".dst-tally").first)  # the panel's width
+            box = _box(page, block)
+            assert (
+                box["x"] >= panel["x"] - 1
+                and box["x"] + box["width"] <= panel["x"] + panel["width"] + 1
+            )
+            utensil = page.get_by_role("combobox").nth(1)
+            assert utensil.input_value() == "infer"
+            utensil.click()
+            page.get_by_role("option", name="spoon", exact=True).click()
+            page.get_by_role("button", name="Reset task").click()
+            _wait(lambda: _belief(page)["names"] == "", 30.0, "a told goal", page)
+            assert "told its goal" in page.locator(".dst-belief").inner_text()
+            assert all(
+                c == ""
+                for c in page.eval_on_selector_all(".dst-gauge", "els => els.map(e => e.dataset.c)")
+            )
+        finally:
+            page.close()

@@ -27,6 +27,7 @@ GROUPS: dict[str, str] = {
     "sweep": "dsteleop.app.bench.sweep:run",
     "export": "dsteleop.app.bench.export:run",
     "link": "dsteleop.app.bench.link:run",
+    "inference": "dsteleop.app.bench.inference:run",
 }
 
 

@@ -8,10 +8,13 @@
     modes_batched           1000 rows of 6 + 5 dims, random states, mixing every registered
                             mode row by row (as the simulation study steps its modes):
                             steps_per_s and call_ms_median
-    dsc_belief_step_us      one unbatched tick with goal inference, as the loop will run it:
-                            the belief over 3 candidates updated from the hand's motion, its
-                            confidence and MAP goal, then one DSC step (a batch of one, 6 + 5
-                            dims): median, p95, p99 [us]; target < 1000 us
+    dsc_belief_step_us      one unbatched tick with goal inference, as the loop runs it
+                            (`app.loop.inference.GoalInference.step`): the belief over 3
+                            candidates updated from the hand's motion, its confidence and MAP
+                            goal, then one DSC step (a batch of one, 6 + 5 dims): median, p95,
+                            p99 [us]; target < 1000 us
+    ds_belief_step_us       the same with a DS step (DS reads no confidence: the inference's
+                            cost on top of DS's)
 
 The headline figures use independent random states (the worst case: random rotations put some
 pairs near pi, and erfc is slowest for the large arguments unrelated states give). The batched
@@ -28,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from dsteleop.app.bench import percentiles_us
+from dsteleop.app.loop.inference import GoalInference
 from dsteleop.arbitration import (
     ArbitrationInput,
     HandState,
@@ -37,7 +41,8 @@ from dsteleop.arbitration import (
     so3_exp,
 )
 from dsteleop.arbitration.arbiters import Arbiter
-from dsteleop.arbitration.belief import GoalBelief
+from dsteleop.arbitration.belief import BeliefParams
+from dsteleop.robot.task import Candidates
 
 
 def _states(rng: np.random.Generator, batch: tuple[int, ...], n_fingers: int) -> HandState:
@@ -109,29 +114,39 @@ def run(quick: bool = False) -> dict[str, Any]:
             "steps_per_s": round(batch / float(np.median(msamples))),
             "call_ms_median": round(float(np.median(msamples)) * 1e3, 3),
         },
-        "dsc_belief_step_us": percentiles_us(_belief_samples(rng, n_fingers, reps)),
+        "dsc_belief_step_us": percentiles_us(_belief_samples(rng, n_fingers, reps, "DSC")),
+        "ds_belief_step_us": percentiles_us(_belief_samples(rng, n_fingers, reps, "DS")),
     }
 
 
-def _belief_samples(rng: np.random.Generator, n_fingers: int, reps: int) -> list[float]:
-    """Seconds per tick of belief update + confidence + MAP goal + DSC step, 3 candidates."""
+def _row(X: HandState) -> HandState:
+    """The one row of a batch of one."""
+    return HandState(X.position[0], X.rotation[0], X.openness[0])
+
+
+def _belief_samples(rng: np.random.Generator, n_fingers: int, reps: int, mode: str) -> list[float]:
+    """Seconds per tick of the loop's inference (update, confidence, MAP goal) + a `mode`
+    step, 3 candidates (the same candidates every tick, as within a phase)."""
     goals = _states(rng, (3,), n_fingers)
-    belief = GoalBelief(goals, np.full((3, 6 + n_fingers), 0.01))
-    arbiter = make_arbiter("DSC")
+    candidates = Candidates(("a", "b", "c"), goals, np.full((3, 6 + n_fingers), 0.01))
+    inference = GoalInference()
+    params = BeliefParams()
+    arbiter = make_arbiter(mode)
     inputs = [_inputs(rng, (1,), n_fingers) for _ in range(min(reps, 500))]
-    b = belief.initial(1)
     state = arbiter.initial_state(6 + n_fingers, (1,))
     samples = []
     for i in range(reps):
         inp = inputs[i % len(inputs)]
         t0 = time.perf_counter()
-        b = belief.update(b, inp.X_human, inp.X_human_prev)
-        conf = belief.confidence(b)
+        got = inference.step(
+            candidates, params, _row(inp.X_current), _row(inp.X_human), _row(inp.X_human_prev)
+        )
         tick = ArbitrationInput(
             X_human=inp.X_human, X_human_prev=inp.X_human_prev, X_human_start=inp.X_human_start,
             X_current=inp.X_current, X_prev=inp.X_prev, X_start=inp.X_start,
-            X_goal=belief.goal_of(conf.map_index), dt=inp.dt, confidence=conf.per_dim,
-            confidence_joint=conf.joint,
+            X_goal=HandState(got.goal.position[None], got.goal.rotation[None],
+                             got.goal.openness[None]),
+            dt=inp.dt, confidence=got.confidence[None], confidence_joint=got.confidence_joint,
         )  # fmt: skip
         state, _ = arbiter.step(state, tick)
         samples.append(time.perf_counter() - t0)

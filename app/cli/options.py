@@ -7,7 +7,8 @@
                          as best.json, with its "objective", "world", "note" and
                          "schema" as a record of the tuning, not applied: a command's own
                          world options choose its world); --param applies on top of it
-    loop options         --source, --mode, --utensil, --seed, --goal-noise, --input-delay,
+    loop options         --source, --mode, --goal, --utensil, --change-mind, --seed, --goal-noise,
+                         --input-delay,
                          --rate, --lost-policy, --history, --record, and every output's own
                          (app/outputs: --record-video, --record-lerobot, --rerun,
                          --rerun-connect): run and serve
@@ -243,7 +244,25 @@ def add_loop_options(
         "(docs/link.md); default iiwa",
     )
     parser.add_argument(
-        "--utensil", default="spoon", help="utensil to pick (spoon, spatula, ladle)"
+        "--goal",
+        default=None,
+        metavar="infer|UTENSIL",
+        help="what the robot is told: a utensil (spoon, spatula, ladle), or infer: it is told "
+        "none and infers the person's from the hand's motion among the utensils in the holder "
+        "(docs/METHOD.md §10); default: told the --utensil",
+    )
+    parser.add_argument(
+        "--utensil",
+        default=None,
+        help="the utensil the person picks (spoon, spatula, ladle; default spoon): the demo "
+        "person's; with a told --goal it must be that one",
+    )
+    parser.add_argument(
+        "--change-mind",
+        default=None,
+        metavar="UTENSIL:S",
+        help="the demo person turns to UTENSIL S seconds into each trial, while it still "
+        "reaches (with --goal infer; docs/operator.md)",
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of goal noise and demo operator")
     parser.add_argument(
@@ -343,7 +362,9 @@ def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOp
     return LoopOptions(
         source=source,
         loop=loop,
-        utensil=args.utensil,
+        utensil=args.utensil or "",
+        goal=args.goal or "",
+        change_mind=parse_change_mind(args.change_mind),
         robot=robot,
         seed=args.seed,
         goal_noise_m=args.goal_noise,
@@ -356,6 +377,25 @@ def loop_options(args: argparse.Namespace, reset_after_s: float = 0.0) -> LoopOp
         history=history,
         input_delay_given=args.input_delay is not None or "input_delay_s" in config.loop_fields,
     )
+
+
+def parse_change_mind(text: str | None) -> tuple[str, float] | None:
+    """`--change-mind UTENSIL:S` as (utensil, seconds); None when not given (the rest is
+    checked with the other options, `compose.options.check_change_mind`).
+
+    Raises:
+        ConfigError: not UTENSIL:S with S a number (one line).
+    """
+    if text is None:
+        return None
+    name, sep, at = text.partition(":")
+    try:
+        seconds = float(at)
+    except ValueError:
+        seconds = math.nan
+    if not sep or not name or not math.isfinite(seconds):
+        raise ConfigError(f"--change-mind needs UTENSIL:S (e.g. spatula:1.5), got {text!r}")
+    return name.strip(), seconds
 
 
 def check_robot(robot: str) -> RobotSpec:

@@ -123,6 +123,10 @@ def run(args: argparse.Namespace) -> int:
     root = opts.record or needed or default_record_root()
     built = build(opts, realtime=True, export_scene=True, record_root=root)
     loop, spec = built.loop, built.source
+    plant = loop.task.describe()
+    info = sources.kind(spec.kind).info()
+    if info is not None and opts.change_mind is not None:
+        info = {**info, "person": "turns to the {} after {:g} s".format(*opts.change_mind)}
     viewer = None
     # Signals stop the loop from here on, also while closing: a second Ctrl-C during the
     # cleanup must not cut the recording's close short.
@@ -133,14 +137,15 @@ def run(args: argparse.Namespace) -> int:
                 loop.controls,
                 scene=loop.task.scene(),
                 config=ViewerConfig(host=cmd.host, port=cmd.port),
-                utensils=tuple(loop.task.describe().get("utensils", ())),
+                utensils=tuple(plant.get("goals") or plant.get("utensils") or ()),
+                utensil=plant.get("goal"),
                 sliders=sliders_for(
                     loop.config.arbitration, loop.task.describe().get("goal_noise_m", 0.0)
                 ),
                 arbitration=loop.config.arbitration,
                 source=source_label(spec),
                 mapping=hand_mapping(loop.hand.mapping_config()),
-                info=sources.kind(spec.kind).info(),
+                info=info,
             )
             if opts.record is not None or needed is not None:
                 utensil = str(loop.task.describe().get("utensil", "task"))

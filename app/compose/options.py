@@ -11,7 +11,9 @@ from typing import Any
 from dsteleop.app import sources
 from dsteleop.app.link.config import LinkConfig, link_config_path, read_link_config
 from dsteleop.app.loop import LoopConfig
+from dsteleop.errors import ConfigError
 from dsteleop.robot.description import RobotDescription, load_description
+from dsteleop.robot.task import INFER
 from dsteleop.tracking.sources import SourceSpec
 
 #: A live session (`serve`) resets the task this long after each outcome, for the next
@@ -71,7 +73,12 @@ class LoopOptions:
     Attributes:
         source: the hand source.
         loop: the loop configuration (mode, rate, lost policy, arbitration, ...).
-        utensil: the utensil to pick.
+        utensil: the utensil the person picks (the demo person's; told to the robot unless
+            `goal` is "infer"); "" before `resolve_goal`: spoon, or the told goal.
+        goal: what the robot is told: "infer" (nothing: it keeps a belief over the utensils,
+            `loop.inference`) or the utensil; "" before `resolve_goal`: the utensil.
+        change_mind: the demo person turns to this utensil this many seconds into each
+            trial (`DemoConfig.change_to`, `change_at_s`), or None.
         robot: the robot (`--robot`), read.
         seed: seed of the goal noise and the demo operator.
         goal_noise_m: goal position noise [m] (None: the task's default).
@@ -91,7 +98,9 @@ class LoopOptions:
 
     source: SourceSpec
     loop: LoopConfig
-    utensil: str = "spoon"
+    utensil: str = ""
+    goal: str = ""
+    change_mind: tuple[str, float] | None = None
     robot: RobotSpec = field(default_factory=_iiwa)
     seed: int = 0
     goal_noise_m: float | None = None
@@ -103,6 +112,18 @@ class LoopOptions:
     time_limit_s: float | None = None
     history: Path | None = None
     input_delay_given: bool = False
+
+    def __post_init__(self) -> None:
+        goal, utensil = resolve_goal(self.goal or None, self.utensil or None)
+        object.__setattr__(self, "goal", goal)
+        object.__setattr__(self, "utensil", utensil)
+        if self.change_mind is not None:
+            check_change_mind(self.change_mind, self.source.kind, goal, utensil)
+
+    @property
+    def infer(self) -> bool:
+        """The robot is not told its utensil."""
+        return self.goal == INFER
 
     @classmethod
     def of(
@@ -117,3 +138,59 @@ class LoopOptions:
         if isinstance(robot, str):
             robot = RobotSpec.parse(robot)
         return cls(sources.parse(source), loop or LoopConfig(), robot=robot, **kw)
+
+
+def resolve_goal(goal: str | None, utensil: str | None) -> tuple[str, str]:
+    """(`--goal`, `--utensil`) as (what the robot is told: "infer" or a utensil, the person's
+    utensil): without `--goal` the robot is told the person's utensil (default spoon); a
+    told goal is the person's utensil too.
+
+    Raises:
+        ConfigError: an unknown utensil or candidate, or a told goal that is not the
+            person's utensil (one line).
+    """
+    from dsteleop.robot.world import UTENSIL_NAMES  # PyBullet's world: not for --help
+
+    if utensil is not None and utensil not in UTENSIL_NAMES:
+        raise ConfigError(
+            f"--utensil: unknown utensil {utensil!r} (choose from {', '.join(UTENSIL_NAMES)})"
+        )
+    if goal is None:
+        return utensil or "spoon", utensil or "spoon"
+    if goal != INFER and goal not in UTENSIL_NAMES:
+        raise ConfigError(
+            f"--goal: unknown candidate {goal!r} (choose from {INFER}, {', '.join(UTENSIL_NAMES)})"
+        )
+    if goal != INFER and utensil is not None and utensil != goal:
+        raise ConfigError(
+            f"--utensil {utensil} with --goal {goal}: a robot told its goal seeks the person's "
+            f"utensil; leave --utensil out, or --goal {INFER} (the robot infers it)"
+        )
+    return goal, utensil or (goal if goal != INFER else "spoon")
+
+
+def check_change_mind(change: tuple[str, float], source: str, goal: str, utensil: str) -> None:
+    """A change of mind the demo person can make: the demo, a robot that infers its goal, a
+    known other utensil, a time > 0.
+
+    Raises:
+        ConfigError: one line saying which and why.
+    """
+    from dsteleop.robot.world import UTENSIL_NAMES
+
+    name, at = change
+    if source != "demo":
+        raise ConfigError("--change-mind: only the demo person changes its mind (--source demo)")
+    if goal != INFER:
+        raise ConfigError(
+            f"--change-mind with a robot told the {goal}: it would work against the person; "
+            f"use --goal {INFER}"
+        )
+    if name not in UTENSIL_NAMES:
+        raise ConfigError(
+            f"--change-mind: unknown utensil {name!r} (choose from {', '.join(UTENSIL_NAMES)})"
+        )
+    if name == utensil:
+        raise ConfigError(f"--change-mind {name}: the person wants the {utensil} already")
+    if not at > 0:
+        raise ConfigError(f"--change-mind: the time must be > 0 seconds, got {at:g}")

@@ -126,10 +126,12 @@ def build(
         mapping or MappingConfig(), robot_fingers=tuple((f.name, f.human) for f in desc.fingers)
     )
     # A source's world sets what the command line did not (the demo person's operator world,
-    # docs/operator.md: the task's goal noise and the link's command delay).
+    # docs/operator.md: the task's goal noise and the link's command delay). A robot that
+    # infers its goal takes no goal noise from it: it perceives the candidates through its
+    # camera (`robot.perception`: the world's 2 cm along the camera's ray only, 5 mm across).
     defaults = source_kind.defaults(options.seed)
     goal_noise_m = options.goal_noise_m
-    if goal_noise_m is None:
+    if goal_noise_m is None and not options.infer:
         goal_noise_m = defaults.goal_noise_m
     delay_s = defaults.input_delay_s
     if delay_s is not None and not options.input_delay_given and options.loop.input_delay_s == 0:
@@ -139,6 +141,7 @@ def build(
     asked = [k for k in output_registry.registered() if k.name in options.outputs]
     task_options: dict[str, Any] = {
         "utensil": options.utensil,
+        "infer": options.infer,
         "seed": options.seed,
         "goal_noise_m": goal_noise_m,
         "export_scene": export_scene or any(k.wants_scene for k in asked),
@@ -181,6 +184,7 @@ def build(
                 options.loop.input_delay_s,
                 rotate=options.rotate,
                 loop_video=options.loop_video,
+                change_mind=options.change_mind,
             ),
         )
         context = OutputContext(

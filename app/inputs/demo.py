@@ -34,6 +34,19 @@ pushed or twisted it in its holder).
 When the task resets (`X_reset` in a record: after an outcome, or a reset from the page) it
 starts over from the robot's new pose with a fresh plan.
 
+The person wants the task's utensil (`Task.true_goals`): the one the robot is told, or with a
+robot that infers its goal (`--goal infer`) the one `--utensil` names. It may change its mind
+(`DemoConfig.change_to`, `--change-mind UTENSIL:S`): `change_at_s` seconds into each trial,
+while it still reaches (it holds no utensil yet), it wants `change_to` instead, and
+redirects its hand at once: the submovement under way is dropped where the hand is, and the
+next is planned from there towards the new utensil (a fresh attempt, as after a failed
+grasp). People redirect a reach within a reaction time of the new target, without finishing
+the first movement (the double-step experiments: Georgopoulos, Kalaska & Massey 1981; Flash &
+Henis 1991), so `change_at_s` is when the redirect starts, the reaction included. (The
+study's people change theirs from their next plan, `closed_loop.Intention.change_at_s`: a
+planar reach of one submovement.) A robot told the first utensil would then work against it,
+so the command line allows it only with `--goal infer`.
+
 The person works in the operator's world (`DemoConfig.world`, `Impairments`, docs/operator.md):
 it perceives the robot through the demo's one virtual camera (its viewing axis is the base's
 x axis: depth misjudged more than lateral position) and through the link's image delay; the
@@ -48,6 +61,7 @@ camera sees the hand at the robot's start pose. The loop cannot tell it from a p
 
 from __future__ import annotations
 
+import math
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -61,6 +75,7 @@ from dsteleop.app.operator.world import Impairments
 from dsteleop.app.session.schema import TickRecord
 from dsteleop.arbitration import ArbitrationConfig, HandState
 from dsteleop.arbitration.se3 import stack as stack_states
+from dsteleop.errors import ConfigError
 from dsteleop.robot.task import EventKind, Phase
 from dsteleop.tracking.mapping import MappingConfig, WorkspaceMapping, human_openness
 from dsteleop.tracking.synthetic import LandmarkNoise, SyntheticSource, palm_facing_camera
@@ -109,6 +124,9 @@ class DemoConfig:
         fps: camera frame rate [Hz].
         world: the impairments the demo runs under (docs/operator.md): by default the
             study's, from the literature; `describe()` says which, in one line.
+        change_to: the utensil it turns to when it changes its mind (module docstring), or
+            None: it keeps its utensil.
+        change_at_s: when, from the start of each trial [s] (> 0).
     """
 
     seed: int = 0
@@ -125,10 +143,21 @@ class DemoConfig:
     speed_share: float = 0.6
     fps: float = 30.0
     world: Impairments = field(default_factory=Impairments)
+    change_to: str | None = None
+    change_at_s: float = 1.5
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.change_at_s) and self.change_at_s > 0):
+            raise ConfigError(f"demo: change_at_s must be > 0 seconds, got {self.change_at_s!r}")
 
     def describe(self) -> str:
         """The demo's world in one line (for the page's status)."""
-        return f"demo world: {self.world.describe()}"
+        change = (
+            ""
+            if self.change_to is None
+            else f"; the person turns to the {self.change_to} after {self.change_at_s:g} s"
+        )
+        return f"demo world: {self.world.describe()}{change}"
 
 
 def demo_intention(
@@ -162,7 +191,8 @@ class DemoOperator:
     camera thread asks for the hand, the loop thread reports the robot.
 
     Args:
-        true_goals: returns the true (pick, place) palm poses in the base frame.
+        true_goals: returns the true (pick, place) palm poses in the base frame, the pick of
+            the utensil it is given (None: the task's).
         start: the robot's start state (the hand starts there, open).
         config: the demo person's plan.
         profile: the person (default: `OperatorProfile()` capped at the robot's limits).
@@ -170,7 +200,7 @@ class DemoOperator:
 
     def __init__(
         self,
-        true_goals: Callable[[], tuple[HandState, HandState]],
+        true_goals: Callable[[str | None], tuple[HandState, HandState]],
         start: HandState,
         config: DemoConfig | None = None,
         profile: OperatorProfile | None = None,
@@ -191,13 +221,15 @@ class DemoOperator:
         self._t = 0.0  # the latest source time the hand was asked for
         self._seen = False
         self._holding = False  # the utensil is in the hand (a grasp event, no release since)
+        self._t_episode = 0.0  # when the current episode started (source time) [s]
+        self._wanted: str | None = None  # the utensil it wants (None: the task's)
         opened = HandState(start.position, start.rotation, np.ones(start.n_fingers))
         self._op = self._person(opened, 0.0, FIRST_STAGE)
         self.dt = 1.0 / self.config.fps
 
     def _intention(self, first: int) -> Intention:
         """The plan from stage `first` of STAGES on, to the true goals as they are now."""
-        pick, place = self._true_goals()
+        pick, place = self._true_goals(self._wanted)
         targets, tol, mask = demo_intention(pick, place, self.config)
         S = len(STAGES) - first
         plan = HandState(
@@ -215,6 +247,11 @@ class DemoOperator:
         return ClosedLoopOperator(
             intention, _one(hand), self.profile, [rng], t0_s, world=self.config.world
         )
+
+    @property
+    def wanted(self) -> str | None:
+        """The utensil it wants now when it changed its mind, else None (the task's)."""
+        return self._wanted
 
     @property
     def stage(self) -> str:
@@ -261,6 +298,23 @@ class DemoOperator:
                     self._holding = False
             if phase is Phase.DONE:
                 return
+            change = self.config.change_to
+            if (
+                change is not None
+                and self._wanted != change
+                and not self._holding
+                and phase is Phase.PICK
+                and self._t - self._t_episode >= self.config.change_at_s
+            ):
+                # Its mind changed: the movement under way is dropped where the hand is, and
+                # a fresh attempt plans towards the new utensil (module docstring).
+                self._wanted = change
+                self._attempt += 1
+                H = op.current
+                hand = HandState(H.position[0], H.rotation[0], H.openness[0])
+                self._op = self._person(hand, self._t, self._first)
+                self._op.observe(self._t, _one(record.X_current))
+                return
             if (phase is Phase.PICK or not self._holding) and self._first < STAGES.index("carry"):
                 # It looks at the utensil, not at where it stood: a hand that brushed it on
                 # the way may have pushed or twisted it in its holder.
@@ -292,6 +346,8 @@ class DemoOperator:
             self._episode += 1
             self._attempt = 0
             self._holding = False
+            self._t_episode = self._t
+            self._wanted = None
             opened = HandState(start.position, start.rotation, np.ones(start.n_fingers))
             self._op = self._person(opened, self._t, FIRST_STAGE)
 

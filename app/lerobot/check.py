@@ -19,6 +19,8 @@
     camera ticks    the frame of each tick was captured within one frame period of the tick
                     (`dsteleop.camera_t_s` against `dsteleop.t_s`) while the camera delivered
                     frames
+    goals           each frame's `observation.goal_belief` a probability vector (in [0, 1],
+                    summing to 1 to 1e-4), the confidences in [0, 1]
     tasks           task_index 0..total_tasks-1, the task string as the pandas index "task"
     stats.json      every numeric feature with min, max, mean, std, count, q01..q99 of its
                     shape ((3, 1, 1) for the camera), count = total_frames
@@ -151,6 +153,7 @@ def problems(root: Path) -> list[str]:  # noqa: PLR0911  (each early return: not
         out.append(f"meta/episodes: the episodes end at {position}, not at {total_frames}")
     out += _videos(root, info, eps, videos)
     out += _camera_ticks(data, fps)
+    out += _goals(data)
     out += _tasks(root, int(info["total_tasks"]))
     out += _stats(root, feats, total_frames)
     ticks = _ticks(root, data)
@@ -224,6 +227,26 @@ def _camera_ticks(data: pa.Table, fps: int) -> list[str]:
                 f"episode {e}: a tick's camera frame was captured {lag.max() * 1e3:.1f} ms from "
                 f"the tick (one frame is {period * 1e3:.1f} ms)"
             )
+    return out
+
+
+def _goals(data: pa.Table) -> list[str]:
+    """The robot's belief a probability vector on every frame, its confidences in [0, 1]."""
+    out = []
+    if L.GOAL_BELIEF in data.column_names:
+        b = np.stack(data.column(L.GOAL_BELIEF).to_numpy(zero_copy_only=False)).astype(float)
+        bad = np.flatnonzero(
+            (b < -1e-6).any(1) | (b > 1 + 1e-6).any(1) | (np.abs(b.sum(1) - 1) > 1e-4)
+        )
+        if bad.size:
+            out.append(f"{L.GOAL_BELIEF}: frame {bad[0]} is not a probability vector: {b[bad[0]]}")
+    for key in (L.GOAL_CONFIDENCE, L.GOAL_CONFIDENCE_JOINT):
+        if key not in data.column_names:
+            continue
+        col = data.column(key).to_numpy(zero_copy_only=False)
+        c = np.stack(col).astype(float) if col.dtype == object else col.astype(float)
+        if c.size and not ((c >= -1e-6) & (c <= 1 + 1e-6)).all():
+            out.append(f"{key}: a confidence outside [0, 1]")
     return out
 
 

@@ -24,6 +24,7 @@ from typing import Any, Literal
 
 from dsteleop.app.lerobot import check_out_dir
 from dsteleop.app.lerobot.camera import DEFAULT_CODEC, SessionFrames
+from dsteleop.app.lerobot.layout import goal_candidates
 from dsteleop.app.lerobot.writer import DatasetWriter, default_task, misfit, session_fps
 from dsteleop.app.session.reader import Session, read_session, sessions_in
 from dsteleop.errors import ConfigError, InputError
@@ -81,7 +82,10 @@ def plan(inputs: Sequence[Path], fps: int | None, which: Which) -> Plan:
             f"action is the tick's command); leave --fps out or give {round(rate)}"
         )
     for s in sessions[1:]:
-        why = misfit(s, sessions[0].dims, sessions[0].joint_names, sessions[0].robot_name)
+        first = sessions[0]
+        why = misfit(
+            s, first.dims, first.joint_names, first.robot_name, goal_candidates(first.meta)
+        )
         if why is not None:
             raise InputError(why)
     cams = {s.video is not None and s.frames is not None for s in sessions}
@@ -132,6 +136,7 @@ def write(
         robot_type=first.robot_name,
         codec=codec,
         joint_names=first.joint_names,
+        candidates=goal_candidates(first.meta),
     )
     for s in p.sessions:
         frames = None

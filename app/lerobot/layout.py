@@ -29,7 +29,12 @@ itself (a monotonic clock, days of uptime: 1e5 s and more) would lose millisecon
 `observation.state` is the robot's achieved palm pose and finger openness when the tick
 started (the previous tick's result, or the reset state at an episode's first tick), then,
 for a session that recorded them, the robot's joint positions at the same moment; `action`
-the state the tick commanded (X_next), the palm pose and openness only. Statistics are those
+the state the tick commanded (X_next), the palm pose and openness only. The robot's goal:
+`observation.goal_belief` its belief over the task's goal candidates after the tick (the
+kitchen's utensils and the bin, `goal_candidates`; a robot told its goal is certain of it:
+1 on the told utensil in the pick phase, on the bin after), `observation.goal_confidence` its
+confidence per dimension and `observation.goal_confidence_joint` in the whole goal (1 when
+told; docs/METHOD.md §10). Statistics are those
 of LeRobot's `compute_stats` (quantiles exact here, where LeRobot estimates them from
 histograms); strings have none.
 
@@ -53,6 +58,7 @@ from dsteleop.app.session.writer import clean
 from dsteleop.arbitration import HandState
 from dsteleop.arbitration.se3 import quat_wxyz_from_matrix
 from dsteleop.errors import InputError
+from dsteleop.robot.task import Phase
 
 Array = NDArray[np.float64]
 
@@ -98,6 +104,19 @@ PER_DIM = {
     "action.robot": "U_robot",
 }
 DEFAULT_FEATURES = ("timestamp", "frame_index", "episode_index", "index", "task_index")
+#: The robot's goal (module docstring): its belief over the candidates, its confidence.
+GOAL_BELIEF = "observation.goal_belief"
+GOAL_CONFIDENCE = "observation.goal_confidence"
+GOAL_CONFIDENCE_JOINT = "observation.goal_confidence_joint"
+#: The place phase's one candidate.
+PLACE_CANDIDATE = "bin"
+
+
+def goal_candidates(meta: Mapping[str, Any]) -> tuple[str, ...]:
+    """The goal candidates of a session's task as `GOAL_BELIEF` names them: the kitchen's
+    utensils, then the bin; () for a task without utensils (no `GOAL_BELIEF` column)."""
+    utensils = (meta.get("plant") or {}).get("utensils") or ()
+    return (*(str(u) for u in utensils), PLACE_CANDIDATE) if utensils else ()
 
 
 def rel(template: str, index: int, video_key: str = "") -> str:
@@ -118,10 +137,14 @@ def state_names(dims: Sequence[str], joint_names: Sequence[str] = ()) -> list[st
 
 
 def features(
-    dims: Sequence[str], camera: Mapping[str, Any] | None, joint_names: Sequence[str] = ()
+    dims: Sequence[str],
+    camera: Mapping[str, Any] | None,
+    joint_names: Sequence[str] = (),
+    candidates: Sequence[str] = (),
 ) -> dict[str, Any]:
     """info.json's `features` (`camera`: the video's info block, or None without video;
-    `joint_names`: the robot's joints the sessions recorded, or none)."""
+    `joint_names`: the robot's joints the sessions recorded, or none; `candidates`: the
+    task's goal candidates, `goal_candidates`, or none)."""
 
     def vec(names: list[str]) -> dict[str, Any]:
         return {"dtype": "float32", "shape": [len(names)], "names": names}
@@ -133,6 +156,10 @@ def features(
     for key in PER_DIM:
         out[key] = vec(list(dims))
     out["observation.arbitrated"] = {"dtype": "int64", "shape": [1], "names": None}
+    if candidates:
+        out[GOAL_BELIEF] = vec(list(candidates))
+    out[GOAL_CONFIDENCE] = vec(list(dims))
+    out[GOAL_CONFIDENCE_JOINT] = {"dtype": "float32", "shape": [1], "names": None}
     if camera is not None:
         out[CAMERA] = {
             "dtype": "video",
@@ -190,6 +217,39 @@ def joint_vectors(records: Sequence[TickRecord], n_joints: int) -> NDArray[np.fl
     return np.array(rows, dtype=np.float32).reshape(len(records), n_joints)
 
 
+def goal_columns(
+    records: Sequence[TickRecord], candidates: Sequence[str], told: str
+) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
+    """`GOAL_BELIEF` (n, K), `GOAL_CONFIDENCE` (n, D), `GOAL_CONFIDENCE_JOINT` (n,) of the
+    ticks (module docstring): a tick's belief where it has one; a told goal's certainty
+    (`told` in the ticks that started in the pick phase, the bin after) where not.
+
+    Raises:
+        InputError: a belief names a candidate that is not among `candidates`.
+    """
+    n, D, K = len(records), len(records[0].dims), len(candidates)
+    belief = np.zeros((n, K), dtype=np.float32)
+    conf = np.ones((n, D), dtype=np.float32)
+    joint = np.ones(n, dtype=np.float32)
+    started_in = at_start(records, lambda r: r.phase, None)
+    for k, r in enumerate(records):
+        b = r.belief
+        if b is not None:
+            conf[k], joint[k] = b.confidence, b.confidence_joint
+            for name, p in zip(b.names, b.probability, strict=True):
+                if name not in candidates:
+                    raise InputError(
+                        f"tick {r.k}: a belief over {name!r}, not one of the dataset's goal "
+                        f"candidates ({', '.join(candidates) or 'none'})"
+                    )
+                belief[k, candidates.index(name)] = p
+        elif K:
+            name = told if started_in[k] is Phase.PICK else PLACE_CANDIDATE
+            if name in candidates:
+                belief[k, candidates.index(name)] = 1.0
+    return belief, conf, joint
+
+
 def frame_columns(
     records: Sequence[TickRecord],
     fps: float,
@@ -198,14 +258,19 @@ def frame_columns(
     task_index: int,
     camera_t_s: Sequence[float] | None,
     n_joints: int = 0,
+    candidates: Sequence[str] = (),
+    told: str = "",
 ) -> dict[str, Any]:
     """The data columns of one episode's ticks (module docstring): numpy arrays, strings as
     a list; the times since the episode's first tick. `camera_t_s`: the capture time of the
     video frame of each tick (on the loop's clock), or None;
-    `n_joints`: the joints the session names (their positions end `observation.state`).
+    `n_joints`: the joints the session names (their positions end `observation.state`);
+    `candidates`, `told`: the task's goal candidates and the utensil a told robot was told
+    (`goal_columns`).
 
     Raises:
-        InputError: the ticks do not hold `n_joints` joint positions each.
+        InputError: the ticks do not hold `n_joints` joint positions each, or believe in a
+            goal that is not a candidate.
     """
     n = len(records)
     dims = records[0].dims
@@ -226,6 +291,11 @@ def frame_columns(
                 a[k] = getattr(r.step, name)
         cols[key] = a
     cols["observation.arbitrated"] = arbitrated.astype(np.int64)
+    belief, conf, joint = goal_columns(records, candidates, told)
+    if candidates:
+        cols[GOAL_BELIEF] = belief
+    cols[GOAL_CONFIDENCE] = conf
+    cols[GOAL_CONFIDENCE_JOINT] = joint
     cols["dsteleop.t_s"] = np.array([r.t_s for r in records], dtype=np.float64) - t0
     if camera_t_s is not None:
         cols["dsteleop.camera_t_s"] = np.asarray(camera_t_s, dtype=np.float64) - t0

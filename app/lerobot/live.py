@@ -24,6 +24,7 @@ from typing import Any
 
 from dsteleop.app.lerobot import check_out_dir
 from dsteleop.app.lerobot.camera import DEFAULT_CODEC, SessionFrames
+from dsteleop.app.lerobot.layout import goal_candidates
 from dsteleop.app.lerobot.writer import DatasetWriter, default_task
 from dsteleop.app.session.episodes import Episode
 from dsteleop.app.session.reader import Session
@@ -128,6 +129,7 @@ class LiveDataset:
                 robot_type=view.robot_name,
                 codec=self.codec,
                 joint_names=view.joint_names,
+                candidates=goal_candidates(view.meta),
             )
         frames = self._frames(folder, ticks[-1].t_s) if self.camera else None
         try:

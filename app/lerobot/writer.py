@@ -57,10 +57,14 @@ def _joints_text(names: Sequence[str]) -> str:
 
 
 def misfit(
-    view: Session, dims: Sequence[str], joint_names: Sequence[str], robot: str
+    view: Session,
+    dims: Sequence[str],
+    joint_names: Sequence[str],
+    robot: str,
+    candidates: Sequence[str] | None = None,
 ) -> str | None:
-    """Why the session `view` does not fit a dataset of these dimensions, joints and robot
-    (one line), or None when it fits."""
+    """Why the session `view` does not fit a dataset of these dimensions, joints, robot and
+    goal candidates (None: not checked) (one line), or None when it fits."""
     if tuple(view.dims) != tuple(dims):
         return (
             f"{view.name}: dimensions {','.join(view.dims)} differ from the dataset's "
@@ -76,6 +80,12 @@ def misfit(
         return (
             f"{view.name}: its robot ({view.robot_name}) differs from the dataset's ({robot}); "
             "export sessions of different robots into separate datasets"
+        )
+    if candidates is not None and L.goal_candidates(view.meta) != tuple(candidates):
+        return (
+            f"{view.name}: its task's goal candidates "
+            f"({', '.join(L.goal_candidates(view.meta)) or 'none'}) differ from the dataset's "
+            f"({', '.join(candidates) or 'none'}); export them into separate datasets"
         )
     return None
 
@@ -102,6 +112,7 @@ class DatasetWriter:
         one_file: export (everything in file-000, written at `close`) or live (a file per
             episode, written as it comes).
         robot_type: info.json's `robot_type`: the robot's description name (`Session.robot_name`).
+        candidates: the task's goal candidates (`layout.goal_candidates`), every session's.
         codec: the camera's codec, "h264" (the default) or "av1" (`camera.CameraEncoder`).
     """
 
@@ -115,9 +126,11 @@ class DatasetWriter:
         robot_type: str,
         codec: str = DEFAULT_CODEC,
         joint_names: Sequence[str] = (),
+        candidates: Sequence[str] = (),
     ) -> None:
         self.codec = codec
         self.joint_names = tuple(joint_names)
+        self.candidates = tuple(candidates)
         self.root = Path(root)
         self.fps = fps
         self.dims = tuple(dims)
@@ -135,7 +148,12 @@ class DatasetWriter:
         self._video_t = 0.0
 
     def _features(self) -> dict[str, Any]:
-        return L.features(self.dims, self._camera_info if self.camera else None, self.joint_names)
+        return L.features(
+            self.dims,
+            self._camera_info if self.camera else None,
+            self.joint_names,
+            self.candidates,
+        )
 
     def _open_encoder(self, file_index: int, width: int, height: int) -> CameraEncoder:
         final = self.root / L.rel(L.VIDEO_PATH, file_index, L.CAMERA)
@@ -161,7 +179,7 @@ class DatasetWriter:
         records = view.records
         if not records:
             raise InputError(f"{view.name}: an episode without ticks")
-        why = misfit(view, self.dims, self.joint_names, self.robot_type)
+        why = misfit(view, self.dims, self.joint_names, self.robot_type, self.candidates)
         if why is not None:
             raise InputError(why)
         if self.camera and frames is None:
@@ -197,6 +215,9 @@ class DatasetWriter:
                 self.tasks.index(task),
                 camera_t,
                 len(self.joint_names),
+                self.candidates,
+                (view.episode.utensil if view.episode is not None else "")
+                or str((view.meta.get("plant") or {}).get("utensil", "")),
             )
         except InputError as exc:
             raise InputError(f"{view.name}: {exc}") from None

@@ -6,6 +6,9 @@ functions of `tick.py`. One tick:
 
     requests  <- controls (stop/resume, mode, calibrate, reset, params, recording), taken once
     input     <- hand.poll(now), re-anchored when the hand comes back
+    goal      <- task.goal(), or for a robot not told its goal the MAP of the belief over
+                 task.candidates() updated from the hand (`inference.GoalInference`), with
+                 its confidence per dimension
     decide    -- tick.decide: arbitration, or the halt ramp / assist while lost (the hand),
                  or the halt ramp while the robot is lost (its state missing or older than
                  ports.ROBOT_STALE_S) or the operator's stop is latched
@@ -44,6 +47,7 @@ from dsteleop.app.loop import tick
 from dsteleop.app.loop.broadcast import Broadcaster
 from dsteleop.app.loop.config import LoopConfig
 from dsteleop.app.loop.controls import Controls, Requests
+from dsteleop.app.loop.inference import GoalInference, Inferred
 from dsteleop.app.loop.timing import (
     OVERRUN_WINDOW_S,
     MonotonicClock,
@@ -160,6 +164,8 @@ class TeleopLoop:
         #: Why `run` stopped on a lost robot ("" if it did not; `run`'s robot_lost_limit_s).
         self.robot_lost_end = ""
         self._joints: Array | None = None  # the robot's last measured joints (None: none)
+        #: The belief over the goal candidates of a robot not told its goal.
+        self.inference = GoalInference()
         #: The operator's stop is latched (Stop pressed, Resume not yet): the robot halts.
         self.stopped = False
         #: Stops the operator pressed since the start (a Stop while stopped is not counted).
@@ -196,6 +202,7 @@ class TeleopLoop:
     def _reset_world(self, utensil: str | None) -> RobotState:
         """The task set up again, then the robot home: its state there."""
         self.task.reset(utensil)
+        self.inference.reset()
         rs = self.robot.reset(self.clock.now())
         self._robot_lost = ""
         self._robot_lost_since = None
@@ -348,17 +355,29 @@ class TeleopLoop:
         reset_state, self._reset_state = self._reset_state, None
         inp = self.hand.poll(now)
         self._last_input = inp
-        goal = self.task.goal()
-        if (
-            self.state.lost
-            and inp is not None
+        candidates = self.task.candidates()
+        goal = self.task.goal() if candidates is None else None
+        fresh = (
+            inp is not None
             and inp.X_human is not None
-            and goal is not None
+            and (goal is not None or candidates is not None)
             and not tick.staleness(inp, now, self.config)
-        ):
+        )
+        if fresh and self.state.lost:
             # First hand of the task: it maps onto the robot's pose. Back after a loss: it
             # maps to where the command was when it was lost. No jump either way.
+            assert inp is not None
             inp = self.hand.reanchor(inp, tick.anchor_target(self.state))
+        inferred: Inferred | None = None
+        t_goal = time.perf_counter()
+        if candidates is not None:
+            X_h = inp.X_human if fresh and inp is not None else None
+            X_h_prev = None if self.state.lost else self.state.X_human_prev
+            inferred = self.inference.step(
+                candidates, self.config.arbitration.belief, self.state.X_current, X_h, X_h_prev
+            )
+            goal = inferred.goal
+        goal_ms = (time.perf_counter() - t_goal) * 1e3
         ended = self.hand.end_reason if self.hand.finished else ""
         self.state, decision = tick.decide(
             self.state,
@@ -370,6 +389,8 @@ class TeleopLoop:
             self._history_term(),
             ended,
             self._robot_lost or (tick.STOPPED if self.stopped else ""),
+            None if inferred is None else inferred.confidence,
+            None if inferred is None else inferred.confidence_joint,
         )
         t_arb = self.clock.now()
         self._seq += 1
@@ -385,6 +406,8 @@ class TeleopLoop:
         for e in (*notes, *(encode_event(ev) for ev in result.events)):
             self.events_log.append((self.tick_index, e))
         timing = self._timing(inp, now, t_arb, t_cmd, jitter_s)
+        if inferred is not None:
+            timing["goal_ms"] = goal_ms  # the belief's update and reading, this tick
         record = TickRecord(
             k=self.tick_index,
             t_s=now,
@@ -404,6 +427,7 @@ class TeleopLoop:
             X_reset=None if reset_state is None else reset_state.X,
             joints_reset=None if reset_state is None else _joints_of(reset_state),
             stopped=self.stopped,
+            belief=None if inferred is None else inferred.record,
         )
         record = self._recording.put(record, self.utensil)
         for observer in self._observers:

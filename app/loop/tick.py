@@ -160,12 +160,16 @@ def decide(
     history_term: Array | None,
     ended: str = "",
     halt: str = "",
+    confidence: Array | None = None,
+    confidence_joint: float | None = None,
 ) -> tuple[LoopState, Decision]:
     """The first half of a tick (module docstring). `inp` is already re-anchored; `ended`
     says why there is no more input once the source has ended ("" while it runs); `halt`
     why the robot must not be driven whatever the hand does: `ports.ROBOT_LOST` (its state
     is missing or stale) or `STOPPED` (the operator's latched stop). The loop then halts
-    exactly as for a lost hand, never assisted ("" while it may be driven)."""
+    exactly as for a lost hand, never assisted ("" while it may be driven). `confidence`
+    and `confidence_joint`: the robot's confidence in `goal` (a belief's, `inference`), per
+    dimension and joint; None: a goal it is told (1)."""
     dt = cfg.dt_s
     reason = halt or staleness(inp, now_s, cfg, ended)
     if not reason and inp is not None and inp.X_human is not None and goal is not None:
@@ -185,6 +189,8 @@ def decide(
                 dt=dt,
                 history_term=history_term,
                 X_ref=state.X_ref,
+                confidence=confidence,
+                confidence_joint=confidence_joint,
             ),
         )
         new = replace(

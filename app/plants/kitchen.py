@@ -43,7 +43,7 @@ from dsteleop.robot.description import RobotDescription, load_description
 from dsteleop.robot.env import EnvConfig, KitchenEnv
 from dsteleop.robot.perception import PerceptionError
 from dsteleop.robot.scene import SceneGeometry
-from dsteleop.robot.task import Candidates, Phase
+from dsteleop.robot.task import INFER, Candidates, Phase
 from dsteleop.robot.world import UTENSIL_NAMES
 
 
@@ -94,12 +94,14 @@ class KitchenTask:
             task = dataclasses.replace(task, goal_noise_pos_m=float(goal_noise_m))
         if goal_noise_rad is not None:
             task = dataclasses.replace(task, goal_noise_rot_rad=float(goal_noise_rad))
-        if infer and perception is None:
+        if perception is None:
             perception = (
                 PerceptionError()
                 if goal_noise_m is None
                 else PerceptionError.isotropic(task.goal_noise_pos_m, task.goal_noise_rot_rad)
             )
+        #: How a robot not told its utensil perceives the candidates (whether it is now).
+        self.perception = perception
         self.config = dataclasses.replace(
             cfg, task=task, infer=infer, perception=perception if infer else None
         )
@@ -112,8 +114,13 @@ class KitchenTask:
     # --- Task interface ----------------------------------------------------------------
 
     def reset(self, utensil: str | None = None) -> None:
-        if utensil is not None:
+        """A new trial: `utensil` a utensil's name tells the robot that one (the person's
+        too); "infer" tells it none (the person keeps its utensil); None: as before."""
+        if utensil == INFER:
+            self.config = dataclasses.replace(self.config, infer=True, perception=self.perception)
+        elif utensil is not None:
             self.utensil = utensil
+            self.config = dataclasses.replace(self.config, infer=False, perception=None)
         self.env.config = self.config  # a new goal noise (the same robot and world)
         self.env.reset(self.utensil, self.seed)
 
@@ -148,9 +155,10 @@ class KitchenTask:
         """New goal noise (isotropic, also for a robot not told its utensil); takes effect at
         the next task reset (goals are drawn at reset)."""
         task = dataclasses.replace(self.config.task, goal_noise_pos_m=float(sigma_m))
-        perception = self.config.perception
-        if perception is not None:
-            perception = PerceptionError.isotropic(float(sigma_m), perception.rotation_sigma_rad)
+        self.perception = PerceptionError.isotropic(
+            float(sigma_m), self.perception.rotation_sigma_rad
+        )
+        perception = self.perception if self.config.infer else None
         self.config = dataclasses.replace(self.config, task=task, perception=perception)
 
     def describe(self) -> dict[str, Any]:
@@ -160,7 +168,7 @@ class KitchenTask:
             "kind": "kitchen",
             "utensil": self.utensil,
             # What the robot is told: a utensil, or "infer" (it chooses among candidates).
-            "goal": "infer" if self.config.infer else self.utensil,
+            "goal": INFER if self.config.infer else self.utensil,
             "perception": None if perception is None else perception.to_dict(),
             "candidates_known": {n: _pose(pose) for n, pose in task.candidates_known.items()},
             "seed": self.seed,
@@ -172,6 +180,8 @@ class KitchenTask:
             "pick_true": _pose(task.pick_true),
             "place_true": _pose(task.place_true),
             "utensils": list(UTENSIL_NAMES),
+            # What the page's Utensil menu offers: infer, or tell the robot a utensil.
+            "goals": [INFER, *UTENSIL_NAMES],
             "control_dt_s": self.config.robot.control_dt_s,
             "robot": self.config.description.name,
             "judged": "twin" if self.twin else "same world",
@@ -183,14 +193,15 @@ class KitchenTask:
     def close(self) -> None:
         self.env.close()
 
-    def true_goals(self) -> tuple[HandState, HandState]:
+    def true_goals(self, utensil: str | None = None) -> tuple[HandState, HandState]:
         """The true pick and place palm poses (open hand), noise-free, as a person watching
-        the scene sees them: the pick is the grasp pose of the utensil where it is now (the
-        task's `pick_true` until the utensil moves, e.g. pushed by a failed grasp)."""
+        the scene sees them: the pick is the grasp pose of `utensil` (None: the task's) where
+        it is now (the task's `pick_true` until the utensil moves, e.g. pushed by a failed
+        grasp)."""
         task = self.env.task
         n = len(self.config.description.fingers)
         return (
-            HandState(*self.env.grasp_pose(), np.ones(n)),
+            HandState(*self.env.grasp_pose(utensil), np.ones(n)),
             HandState(*task.place_true, np.ones(n)),
         )
 
@@ -221,7 +232,7 @@ def task_options_from_meta(meta: dict[str, Any]) -> dict[str, Any]:
         # Sessions before the world kept the loop's rate stepped 1/30 s a tick whatever it was.
         "control_dt_s": float(meta.get("control_dt_s") or CONTROL_DT_S),
         # Sessions before goal inference told the robot its utensil.
-        "infer": meta.get("goal") == "infer",
+        "infer": meta.get("goal") == INFER,
         "perception": (
             None
             if meta.get("perception") is None

@@ -125,7 +125,7 @@ class RecordedTask:
         told."""
         return None
 
-    def true_goals(self) -> tuple[HandState, HandState]:
+    def true_goals(self, utensil: str | None = None) -> tuple[HandState, HandState]:
         raise InputError("a recorded task has no true goals to show a demo operator")
 
     def update(self, state: RobotState) -> TaskStep:

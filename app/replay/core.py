@@ -21,6 +21,9 @@ where the arbitration ran; actions are compared in units of each dimension's vel
     success, time    the task's outcome and its duration [s]; `censored` when the episode
                      ended without an outcome or by the task's timeout (the time is a bound)
     mean_alpha       per dimension
+    belief           a robot not told its goal (`--goal infer`): what its belief over the
+                     candidates did (`app.replay.belief`: the MAP at the grasp against the
+                     utensil grasped, when the MAP settled, its switches, the confidence)
 
 Both action metrics skip the same idle actions (`metrics.idle_actions`: the operator's or the
 output's action at most 1e-9 of the velocity limits), counted in `skipped_idle`.
@@ -50,6 +53,7 @@ from dsteleop.app.inputs.recorded import RecordedHandInput
 from dsteleop.app.loop import LoopConfig, TeleopLoop
 from dsteleop.app.loop.timing import ManualClock
 from dsteleop.app.ports import HandInput, Robot, Task
+from dsteleop.app.replay.belief import aggregate_beliefs, belief_metrics
 from dsteleop.app.session.episodes import Episode
 from dsteleop.app.session.reader import Session
 from dsteleop.app.session.schema import TickRecord
@@ -169,6 +173,14 @@ def as_recorded(session: Session) -> Trace:
 
 
 # --- metrics --------------------------------------------------------------------------------
+
+
+def belief_of(trace: Trace) -> dict[str, Any] | None:
+    """The run's belief counts (`app.replay.belief.belief_metrics`), None when told."""
+    if not any(b is not None for b in trace.beliefs):
+        return None
+    dt = float(np.median(np.diff(trace.t_s))) if len(trace) > 1 else 1.0 / 30.0
+    return belief_metrics(trace.t_s.tolist(), trace.beliefs, trace.grasped, trace.dims, dt)
 
 
 def action_counts(trace: Trace) -> dict[str, int]:
@@ -298,6 +310,9 @@ def session_summary(name: str, recorded_s: float, traces: Sequence[Trace]) -> di
             "mean_alpha": mean_alpha,
             "arbitrated_ticks": int(tr.arbitrated.sum()),
         }
+        belief = belief_of(tr)
+        if belief is not None:
+            modes[tr.mode.value]["belief"] = belief
     return {"name": name, "duration_s": round(recorded_s, 4), "modes": modes}
 
 
@@ -324,6 +339,9 @@ def aggregate(
             out.update(_summary(m, per[mode][m.name], rows))
         out["skipped_idle"] = sum(int(r.get("skipped_idle", 0)) for r in rows)
         agg[mode] = out
+        beliefs = aggregate_beliefs([r.get("belief") for r in rows])
+        if beliefs is not None:
+            agg[mode]["belief"] = beliefs
     tests: dict[str, Any] = {}
     for i, a in enumerate(modes):
         for b in modes[i + 1 :]:

@@ -1,6 +1,7 @@
 """PNG plots of replayed runs: alpha_i, P(H), P(R), B over time; per episode, the hand's and
 the robot's paths in metres with the goals, and their positions over time with the task's
-phases."""
+phases; for a robot that infers its goal, its belief over the candidates and its confidence
+over time (`belief_figure`)."""
 
 from __future__ import annotations
 
@@ -114,6 +115,54 @@ def trajectory_figure(name: str, traces: Sequence[Trace], open_loop: bool = Fals
     return fig
 
 
+def belief_figure(tr: Trace, open_loop: bool = False) -> Figure | None:
+    """A robot that infers its goal: its belief in each candidate over time (the bin's from
+    the place phase on), the utensil grasped named, and below it the confidence per
+    dimension of the goal it sought, with the joint one; None for a run without a belief."""
+    if not any(b is not None for b in tr.beliefs):
+        return None
+    import matplotlib.pyplot as plt
+
+    names: list[str] = []
+    for b in tr.beliefs:
+        for n in b.names if b is not None else ():
+            if n not in names:
+                names.append(n)
+    T = len(tr)
+    p = np.full((T, len(names)), np.nan)
+    c = np.full((T, len(tr.dims) + 1), np.nan)
+    for k, b in enumerate(tr.beliefs):
+        if b is not None:
+            p[k, [names.index(n) for n in b.names]] = b.probability
+            c[k] = [*b.confidence, b.confidence_joint]
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True)
+    for phase, t0, t1 in _phase_spans(tr):
+        for ax in (top, bottom):
+            ax.axvspan(t0, t1, color=PHASE_SHADES[phase], lw=0)
+    for j, n in enumerate(names):
+        bold = n == tr.grasped
+        top.plot(tr.t_s, p[:, j], lw=2.0 if bold else 1.2, label=n + (" (grasped)" if bold else ""))
+    top.set_ylim(-0.02, 1.02)
+    top.set_ylabel("belief")
+    top.legend(fontsize=8, loc="center right")
+    top.grid(alpha=0.3)
+    for i, d in enumerate(tr.dims):
+        bottom.plot(tr.t_s, c[:, i], lw=0.9, label=d)
+    bottom.plot(tr.t_s, c[:, -1], color="black", lw=2.0, label="joint")
+    bottom.set_ylim(-0.02, 1.02)
+    bottom.set_ylabel("confidence c")
+    bottom.set_xlabel("time [s] (phases shaded: pick, place, done)")
+    bottom.legend(fontsize=7, ncol=6, loc="lower right")
+    bottom.grid(alpha=0.3)
+    loop = f"; {OPEN_LOOP}" if open_loop else ""
+    top.set_title(
+        f"{tr.name} - {tr.mode.value}: the robot's belief over its goal and its confidence "
+        f"({tr.outcome_name}{loop})"
+    )
+    fig.tight_layout()
+    return fig
+
+
 def plot_traces(traces: Sequence[Trace], out: Path, open_loop: bool = False) -> list[Path]:
     """One figure per run (arbitration over time) and one per episode (`trajectory_figure`);
     returns the files. `open_loop`: every title says the runs are open loop."""
@@ -151,6 +200,13 @@ def plot_traces(traces: Sequence[Trace], out: Path, open_loop: bool = False) -> 
         fig.savefig(f, dpi=80)
         plt.close(fig)
         files.append(f)
+
+        belief = belief_figure(tr, open_loop)
+        if belief is not None:
+            f = out / f"{_safe(tr.name)}_{_safe(tr.mode.value)}_belief.png"
+            belief.savefig(f, dpi=80)
+            plt.close(belief)
+            files.append(f)
 
     by_episode: dict[str, list[Trace]] = {}
     for tr in traces:

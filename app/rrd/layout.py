@@ -10,7 +10,12 @@ live loop) logs under its own root, so the modes sit side by side on one timelin
                                                                   did not run)
     {root}/palm                  Transform3D: the robot's palm (X_current, base frame)
     {root}/hand                  Transform3D: the mapped hand (X_human), when fresh
-    {root}/goal                  Transform3D: the goal the robot knows (noisy)
+    {root}/goal                  Transform3D: the goal the robot knows (noisy; the MAP
+                                 candidate's, for a robot that infers its goal)
+    {root}/belief/{candidate}    Scalars: a robot not told its goal: its belief in each
+                                 candidate after each tick (NaN where not a candidate then)
+    {root}/confidence/{dim}      Scalars: its confidence per dimension (`joint`: in the whole
+                                 goal), NaN where it was told
     {root}/scene/{frame}         Transform3D per tick: the scene's links and bodies, with their
                                  shapes (from the same `SceneGeometry` the browser draws) below
     {root}/events                TextLog: task events (goal, grasp, release, outcome), notes
@@ -49,6 +54,16 @@ def hand(root: str) -> str:
 
 def goal(root: str) -> str:
     return f"{root}/goal"
+
+
+def belief(root: str, candidate: str) -> str:
+    """The belief in one goal candidate, e.g. belief("DSC", "ladle") = "DSC/belief/ladle"."""
+    return f"{root}/belief/{candidate}"
+
+
+def confidence(root: str, dim: str) -> str:
+    """The confidence in one dimension of the goal ("joint": in all at once)."""
+    return f"{root}/confidence/{dim}"
 
 
 def goal_true(name: str) -> str:

@@ -93,6 +93,7 @@ def log_run(
     hands = [r.X_human if r.hand is not None else None for r in records]
     _send_state(rec, layout.hand(root), t, hands)
     _send_state(rec, layout.goal(root), t, [r.X_goal for r in records])
+    _send_belief(rec, root, t, records)
     if scene is not None:
         _send_scene(rec, root, t, records, scene.frames)
     # One line per tick (a time holds one row of an entity): its task events and notes.
@@ -113,6 +114,40 @@ def log_run(
             st.append(r.status.value if not r.reason else f"{r.status.value}: {r.reason}")
             last = now
     _send_texts(rec, layout.status(root), st_t, st)
+
+
+def _send_belief(
+    rec: rr.RecordingStream, root: str, t: Array, records: Sequence[TickRecord]
+) -> None:
+    """A robot not told its goal: its belief in each candidate and its confidence per
+    dimension and joint, one row per tick (NaN where it had none: told, or not a candidate
+    then); nothing for a run without a belief."""
+    if all(r.belief is None for r in records):
+        return
+    names: list[str] = []
+    for r in records:
+        for n in r.belief.names if r.belief is not None else ():
+            if n not in names:
+                names.append(n)
+    dims = records[0].dims
+    T = len(records)
+    p = np.full((T, len(names)), np.nan)
+    c = np.full((T, len(dims) + 1), np.nan)
+    for k, r in enumerate(records):
+        b = r.belief
+        if b is not None:
+            p[k, [names.index(n) for n in b.names]] = b.probability
+            c[k] = [*b.confidence, b.confidence_joint]
+    for j, n in enumerate(names):
+        rec.send_columns(
+            layout.belief(root, n), indexes=_time(t), columns=rr.Scalars.columns(scalars=p[:, j])
+        )
+    for i, d in enumerate((*dims, "joint")):
+        rec.send_columns(
+            layout.confidence(root, d),
+            indexes=_time(t),
+            columns=rr.Scalars.columns(scalars=c[:, i]),
+        )
 
 
 def _send_state(

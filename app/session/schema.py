@@ -7,18 +7,21 @@ back into the same type, so every consumer handles one shape. It holds the arbit
 shape), so a new field of either reaches the recording and the view without an edit here
 beyond its encoding.
 
-JSON form (schema `dsteleop.session/4`; `recordings/README.md` lists the keys): states are
+JSON form (schema `dsteleop.session/5`; `recordings/README.md` lists the keys): states are
 flat lists, position (3), rotation matrix row-major (9), openness (F); per-dimension arrays
 are lists of 6 + F values; task events are "kind" or "kind:detail"; the robot's joint
 positions (`joints`, and `joints_reset` beside `X_reset`) a list in the order of the
 metadata's `joint_names` [rad, or m for a prismatic joint: `joint_units`]. Inputs of a
 replay (the hand, the robot's side, the times) keep full precision; outputs (the
-arbitration, the command) keep 10 significant digits; landmarks 4 decimals. Older schemas
-are read too. Schema 3 differs from 4 only in the joints (3 recorded none: its records read
-back with `joints` None). Schema 2 differs from 3 only in the metadata (3 lists the
-session's episodes, `session.episodes`) and in the status of ticks after the outcome
-(`finished`; 2 said `lost`). Schema 1 (before the typed record): its notes and task events
-were one list, told apart here by kind.
+arbitration, the command) keep 10 significant digits; landmarks 4 decimals. A robot that is
+not told its goal (`--goal infer`) records its belief each tick (`belief`: the candidates'
+names, their probabilities, the MAP, the confidence per dimension and joint; 10 significant
+digits). Older schemas are read too. Schema 4 differs from 5 only in the belief (4 recorded
+none: its records read back with `belief` None). Schema 3 differs from 4 only in the joints
+(3 recorded none: its records read back with `joints` None). Schema 2 differs from 3 only in
+the metadata (3 lists the session's episodes, `session.episodes`) and in the status of ticks
+after the outcome (`finished`; 2 said `lost`). Schema 1 (before the typed record): its notes
+and task events were one list, told apart here by kind.
 """
 
 from __future__ import annotations
@@ -40,8 +43,14 @@ from dsteleop.tracking.types import HandSample
 
 Array = NDArray[np.float64]
 
-SCHEMA = "dsteleop.session/4"
-READABLE = ("dsteleop.session/1", "dsteleop.session/2", "dsteleop.session/3", SCHEMA)
+SCHEMA = "dsteleop.session/5"
+READABLE = (
+    "dsteleop.session/1",
+    "dsteleop.session/2",
+    "dsteleop.session/3",
+    "dsteleop.session/4",
+    SCHEMA,
+)
 
 
 class Status(str, enum.Enum):
@@ -71,6 +80,34 @@ class RecordingStatus:
 
 
 @dataclass(frozen=True)
+class BeliefRecord:
+    """The robot's belief over its goal candidates after a tick (`--goal infer`;
+    docs/METHOD.md §10).
+
+    Attributes:
+        names: the candidates (the utensils in the pick phase, "bin" in the place phase).
+        probability: (K,) the belief over them, each >= belief.epsilon, summing to 1.
+        map_index: the MAP candidate (the robot's goal).
+        confidence: (6 + F,) the robot's confidence c_i in each dimension of that goal.
+        confidence_joint: its confidence in the whole goal at once.
+    """
+
+    names: tuple[str, ...]
+    probability: Array
+    map_index: int
+    confidence: Array
+    confidence_joint: float
+
+    @property
+    def map_name(self) -> str:
+        return self.names[self.map_index]
+
+    def of(self, name: str) -> float:
+        """The probability of candidate `name` (nan if it is not one)."""
+        return float(self.probability[self.names.index(name)]) if name in self.names else math.nan
+
+
+@dataclass(frozen=True)
 class TickRecord:
     """Everything about one tick (module docstring).
 
@@ -96,6 +133,8 @@ class TickRecord:
             joint] (`Robot.joint_names` order), or None (no reset, or no joints reported).
         stopped: the operator's stop was latched during this tick (the page's Stop, until
             Resume): the robot halts as for a lost hand; written only when True.
+        belief: the belief over the goal candidates of a robot not told its goal, after
+            this tick, or None (told, or the task done).
         recording: the recording in progress, or None (for the view; not written).
     """
 
@@ -117,6 +156,7 @@ class TickRecord:
     X_reset: HandState | None = None
     joints_reset: Array | None = None
     stopped: bool = False
+    belief: BeliefRecord | None = None
     recording: RecordingStatus | None = None
 
     @property
@@ -270,6 +310,8 @@ def encode(r: TickRecord) -> dict[str, Any]:
     }
     if r.stopped:
         out["stopped"] = True
+    if r.belief is not None:
+        out["belief"] = encode_belief(r.belief)
     if r.X_reset is not None:
         out["X_reset"] = pack(r.X_reset)
         if r.joints_reset is not None:
@@ -277,7 +319,35 @@ def encode(r: TickRecord) -> dict[str, Any]:
     return out
 
 
+def encode_belief(b: BeliefRecord) -> dict[str, Any]:
+    """A belief as its JSON object (`TickRecord.belief`)."""
+    return {
+        "names": list(b.names),
+        "p": _sig(b.probability),
+        "map": b.map_name,
+        "c": _sig(b.confidence),
+        "c_joint": float(f"{b.confidence_joint:.10g}"),
+    }
+
+
 # --- decode --------------------------------------------------------------------------------
+
+
+def decode_belief(v: dict[str, Any] | None) -> BeliefRecord | None:
+    """A belief from its JSON object (None: none recorded)."""
+    if v is None:
+        return None
+    names = tuple(str(n) for n in v["names"])
+    p = np.asarray(v["p"], dtype=np.float64)
+    if p.shape != (len(names),):
+        raise ValueError(f"belief: {p.size} probabilities for {len(names)} candidates")
+    return BeliefRecord(
+        names,
+        p,
+        names.index(str(v["map"])),
+        np.asarray(v["c"], dtype=np.float64),
+        float(v["c_joint"]),
+    )
 
 
 def _decode_hand(h: dict[str, Any] | None) -> HumanInput | None:
@@ -365,6 +435,7 @@ def decode(d: dict[str, Any], dims: tuple[str, ...]) -> TickRecord:
             X_reset=unpack(d.get("X_reset")),
             joints_reset=unpack_joints(d.get("joints_reset")),
             stopped=bool(d.get("stopped", False)),
+            belief=decode_belief(d.get("belief")),
         )
     except (KeyError, TypeError, ValueError, AssertionError) as exc:
         raise InputError(f"malformed tick record ({type(exc).__name__}: {exc})") from None

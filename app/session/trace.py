@@ -14,9 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from dsteleop.app.session.schema import TickRecord
+from dsteleop.app.session.schema import BeliefRecord, TickRecord
 from dsteleop.arbitration import STEP_ARRAYS, ArbitrationStep, HandState, Mode
-from dsteleop.robot.task import Outcome, Phase
+from dsteleop.robot.task import EventKind, Outcome, Phase
 
 Array = NDArray[np.float64]
 
@@ -40,6 +40,8 @@ class Trace:
         outcome: how the run ended, or None.
         time_s: the time from the first tick to the outcome, or the run's length [s].
         v_max: (D,) velocity limits of the run's arbitration.
+        beliefs: (T,) the belief over the goal candidates after each tick (None: told).
+        grasped: the utensil of the run's first grasp event, or None.
     """
 
     name: str
@@ -55,6 +57,8 @@ class Trace:
     outcome: Outcome | None
     time_s: float
     v_max: Array
+    beliefs: tuple[BeliefRecord | None, ...] = ()
+    grasped: str | None = None
 
     def __len__(self) -> int:
         return int(self.t_s.shape[0])
@@ -98,6 +102,16 @@ class Trace:
             outcome=outcome,
             time_s=(end - t0) if end is not None else duration,
             v_max=np.asarray(v_max, dtype=np.float64),
+            beliefs=tuple(r.belief for r in records),
+            grasped=next(
+                (
+                    e.detail or None
+                    for r in records
+                    for e in r.plant.events
+                    if e.kind is EventKind.GRASP
+                ),
+                None,
+            ),
         )
 
     @property

@@ -57,6 +57,8 @@ class SourceContext:
         input_delay_s: the injected input delay [s] (a hand input of its own applies it).
         rotate: turn camera or video frames [deg clockwise], or None.
         loop_video: play a video again at its end.
+        change_mind: the demo person turns to this utensil this many seconds into each
+            trial (`--change-mind`), or None.
     """
 
     task: Task
@@ -68,6 +70,7 @@ class SourceContext:
     input_delay_s: float
     rotate: int | None = None
     loop_video: bool = False
+    change_mind: tuple[str, float] | None = None
 
 
 @dataclass(frozen=True)

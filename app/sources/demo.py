@@ -13,9 +13,9 @@ from dsteleop.tracking.sources import SourceSpec
 
 
 def open_demo(spec: SourceSpec, ctx: SourceContext) -> Opened:
-    demo = DemoOperator(
-        ctx.task.true_goals, ctx.X_start, DemoConfig(seed=ctx.seed), arbitration=ctx.arbitration
-    )
+    change_to, change_at_s = ctx.change_mind or (None, DemoConfig.change_at_s)
+    config = DemoConfig(seed=ctx.seed, change_to=change_to, change_at_s=change_at_s)
+    demo = DemoOperator(ctx.task.true_goals, ctx.X_start, config, arbitration=ctx.arbitration)
     frames = demo_source(
         demo, DemoCamera(ctx.X_start, ctx.mapping), realtime=ctx.realtime, seed=ctx.seed
     )

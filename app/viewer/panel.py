@@ -5,9 +5,13 @@ so they are tested without a server. The stylesheet and the HTML templates are f
 `web_assets/` (installed as `dsteleop.web_assets`). Colour code, everywhere: the operator is
 blue, the robot orange. Each dimension's gauge is a bar whose orange share is alpha (the
 robot's authority) and whose blue share is 1 - alpha (the operator's); ticks on the bar mark
-P(H) (blue), P(R) (orange) and B (black), and the numbers follow. Every gauge row carries its
-values as `data-*` attributes (`data-dim`, `data-alpha`, `data-ph`, `data-pr`, `data-b`) so
-that a test, or an operator's own tooling, can read them from the page.
+P(H) (blue), P(R) (orange) and B (black), and the numbers follow, the last the robot's
+confidence c_i in that dimension of its goal (a goal it infers, `--goal infer`; "-" when it
+is told). Every gauge row carries its values as `data-*` attributes (`data-dim`,
+`data-alpha`, `data-ph`, `data-pr`, `data-b`, `data-c`) so that a test, or an operator's own
+tooling, can read them from the page. Above the gauges, the robot's belief over its goal
+candidates: one bar per candidate (`belief_html`: `data-name`, `data-p`, `data-map` on each
+row), or one line saying which goal it was told.
 
 What the marks are (docs/METHOD.md): P(H) is the expected control allocation of the
 operator's own pose, eq (4)-(5): the robot's share alpha that the hand's distance from the
@@ -108,10 +112,15 @@ def _two(v: float) -> str:
     return "nan" if not math.isfinite(float(v)) else f"{float(v):.2f}"
 
 
-def gauge_row(dim: str, alpha: float, p_h: float, p_r: float, b: float) -> str:
-    """One dimension's gauge: alpha bar with P(H), P(R), B ticks, and the four numbers."""
+def gauge_row(
+    dim: str, alpha: float, p_h: float, p_r: float, b: float, c: float | None = None
+) -> str:
+    """One dimension's gauge: alpha bar with P(H), P(R), B ticks, and the four numbers, then
+    the robot's confidence `c` in the dimension (None: a goal it is told, shown "-")."""
     a = float(alpha) if math.isfinite(float(alpha)) else 0.0
     return _template("gauge_row.html").substitute(
+        c_attr="" if c is None else _num(c),
+        c="-" if c is None else _two(c),
         dim=html.escape(dim),
         alpha_attr=_num(alpha),
         ph_attr=_num(p_h),
@@ -137,12 +146,44 @@ def gauges_html(record: TickRecord, step: ArbitrationStep | None) -> str:
     a, h, r, b = (
         (step.alpha, step.P_human, step.P_robot, step.B) if step is not None else (zeros,) * 4
     )
+    c = None if record.belief is None else record.belief.confidence
     rows = [
-        gauge_row(d, float(a[i]), float(h[i]), float(r[i]), float(b[i]))
+        gauge_row(
+            d, float(a[i]), float(h[i]), float(r[i]), float(b[i]), None if c is None else c[i]
+        )
         for i, d in enumerate(record.dims)
     ]
     head = asset("gauges_head.html").strip()
     return f'<div class="dst-gauges" data-tick="{int(record.k)}">{head}{"".join(rows)}</div>'
+
+
+def belief_html(record: TickRecord | None, told: str = "") -> str:
+    """The robot's belief over its goal candidates: one bar per candidate, the MAP (the goal
+    it seeks) in bold, with the joint confidence (`data-names`, `data-map`, `data-c-joint` on
+    the block; `data-name`, `data-p`, `data-map` on each row); without a belief, one line
+    saying the goal is told (`told`: which) or that there is none (the task is done)."""
+    belief = None if record is None else record.belief
+    if belief is None:
+        said = (
+            f"robot told its goal: {html.escape(told)}"
+            if told
+            else "robot told its goal (Utensil menu; infer: it infers it from the hand)"
+        )
+        return f'<div class="dst-belief" data-names="" data-map="">{said}</div>'
+    rows = "".join(
+        f'<div class="dst-belief-row" data-name="{html.escape(n)}" data-p="{_num(p)}" '
+        f'data-map="{int(k == belief.map_index)}"><span class="dst-belief-name">'
+        f'{html.escape(n)}</span><div class="dst-belief-bar"><div class="dst-belief-fill" '
+        f'style="width:{_pct(p)}"></div></div><span class="dst-num">{_two(p)}</span></div>'
+        for k, (n, p) in enumerate(zip(belief.names, belief.probability, strict=True))
+    )
+    names = html.escape(",".join(belief.names))
+    return (
+        f'<div class="dst-belief" data-names="{names}" data-map="{html.escape(belief.map_name)}"'
+        f' data-c-joint="{_num(belief.confidence_joint)}"><b>Goal inferred</b> (belief; the '
+        f"robot seeks <b>{html.escape(belief.map_name)}</b>, confidence "
+        f"{_two(belief.confidence_joint)}){rows}</div>"
+    )
 
 
 def _timing_items(

@@ -63,6 +63,7 @@ from dsteleop.app.viewer.panel import (
     STOP_KEY,
     AlphaHistory,
     TrialTally,
+    belief_html,
     camera_image,
     gauges_html,
     legend_html,
@@ -230,7 +231,9 @@ class Viewer:
         scene: the plant's scene description, or None to draw the robot hand as a proxy at
             the achieved pose.
         config: listen address and update rates.
-        utensils: utensil names offered in the GUI.
+        utensils: what the Utensil menu offers: "infer" (the robot is told no utensil) and
+            the utensils (a utensil tells the robot that one).
+        utensil: the menu's value at start (the task's goal), default its first.
         sliders: hyper-parameter sliders (initial values should match the loop's config).
         arbitration: the loop's arbitration config: parameter changes are checked against
             it before they are posted (`refusal`).
@@ -254,6 +257,7 @@ class Viewer:
         source: str = "",
         mapping: MappingConfig | None = None,
         info: Mapping[str, str] | None = None,
+        utensil: str | None = None,
     ) -> None:
         import viser  # heavy: imported only when a view is built
 
@@ -291,6 +295,7 @@ class Viewer:
         self._accepted: dict[str, float] = {}
         self.refused: dict[str, str] = {}  # slider name -> why its last value was refused
         self._mapping = mapping
+        self._utensil_at_start = utensil
         self._build(utensils, sliders)
 
     # ------------------------------------------------------------------ public
@@ -361,6 +366,7 @@ class Viewer:
             'data-status="waiting">waiting for the loop&hellip;</div>'
         )
         self._tally = gui.add_html(tally_html(self.tally))
+        self._belief = gui.add_html(belief_html(None))
         self._gauges = gui.add_html('<div class="dst-gauges" data-tick="-1"></div>')
         gui.add_html(legend_html())
         self._plot_folder = gui.add_folder("Authority over time (alpha)")
@@ -408,7 +414,14 @@ class Viewer:
                 self._controls.reset(str(utensil.value))
 
         names = tuple(utensils) or DEFAULT_UTENSILS
-        utensil = gui.add_dropdown("Utensil", names, initial_value=names[0])
+        first = self._utensil_at_start if self._utensil_at_start in names else names[0]
+        utensil = gui.add_dropdown(
+            "Utensil",
+            names,
+            initial_value=first,
+            hint="the robot's goal at the next reset: a utensil (told), or infer (told none: it "
+            "infers the person's from the hand's motion)",
+        )
 
         @utensil.on_update
         def _(event: Any) -> None:
@@ -613,6 +626,7 @@ class Viewer:
             if self.tally.observe(snap) is not None:
                 self._tally.content = tally_html(self.tally)
             self._gauges.content = gauges_html(snap, self._last_step)
+            self._belief.content = belief_html(snap)
             self._show_stopped(snap.stopped)
             now = time.monotonic()
             if self._plot is not None and now - self._t_plot >= 1.0 / self.config.plot_hz:
