@@ -340,7 +340,7 @@ def decode_belief(v: dict[str, Any] | None) -> BeliefRecord | None:
     names = tuple(str(n) for n in v["names"])
     p = np.asarray(v["p"], dtype=np.float64)
     if p.shape != (len(names),):
-        raise ValueError(f"belief: {p.size} probabilities for {len(names)} candidates")
+        raise FormatError(f"belief: {p.size} probabilities for {len(names)} candidates")
     return BeliefRecord(
         names,
         p,
