@@ -38,6 +38,7 @@ from pathlib import Path
 from typing import Any
 
 from dsteleop.app.cli.options import add_config_options, add_video_options, arbitration_config
+from dsteleop.app.jsonable import jsonable
 from dsteleop.app.outpaths import created_dir, output_dir, output_file
 from dsteleop.app.tasks.progress import Progress
 from dsteleop.arbitration import ArbitrationConfig, Mode, registered
@@ -414,7 +415,7 @@ def _run(cmd: ReplayCommand, out: Path) -> int:
         "divergence": core.divergences(all_traces),
     }
     (out / "metrics.json").write_text(
-        json.dumps(core.jsonable(metrics_json), indent=2, allow_nan=False) + "\n"
+        json.dumps(jsonable(metrics_json), indent=2, allow_nan=False) + "\n"
     )
     if cmd.plots:
         from dsteleop.app.replay.plots import plot_traces
