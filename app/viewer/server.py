@@ -1,9 +1,9 @@
 """The browser view: a Viser server fed by the loop's snapshots, a sink with a mailbox back.
 
-The viewer is a sink (STYLE.md item 7). It owns a `viser.ViserServer` and one thread that
-reads its own one-slot `Subscription` of the loop's `Broadcaster`: the loop only ever
-overwrites that slot, so a slow viewer, or a closed or stalled browser tab behind it, skips
-snapshots and never slows the loop. Viser's per-client message buffer then keeps only the
+The viewer is a sink (docs/viewer.md, "How it is built"). It owns a `viser.ViserServer` and
+one thread that reads its own one-slot `Subscription` of the loop's `Broadcaster`: the loop
+only ever overwrites that slot, so a slow viewer, or a closed or stalled browser tab behind
+it, skips snapshots and never slows the loop. Viser's per-client message buffer then keeps only the
 newest update per element, so a slow client coalesces as well. GUI callbacks only post
 requests to `Controls`, which the loop takes once per tick; the viewer never touches the
 loop's state and never imports PyBullet.
