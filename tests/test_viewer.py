@@ -631,7 +631,9 @@ def test_viewer_follows_a_live_loop_and_never_posts_on_its_own() -> None:
         assert viewer.stats.errors == 0
         assert viewer.scene.frames  # drawn from the robot's description
         # The page's alpha plot: both axes say what they show, with units.
-        x_axis, y_axis = (a["label"] for a in viewer._plot.axes)
+        plot = viewer._plot
+        assert plot is not None and plot.axes is not None
+        x_axis, y_axis = (a["label"] for a in plot.axes)
         assert "[s]" in x_axis and "alpha" in y_axis and "robot" in y_axis, (x_axis, y_axis)
         assert viewer.scene.robot_hand is None  # the real hand is drawn, not a proxy
         assert loop.controls.take().empty  # a sink: nothing is posted without a person

@@ -382,7 +382,7 @@ def best_of(recs: Sequence[TrialRecord], objective: Objective) -> TrialRecord | 
 
 @dataclass
 class _Running:
-    trial: Any  # optuna.Trial
+    trial: optuna.Trial
     params: dict[str, Value]
     handles: list[tuple[str, Any]]
     t0: float
