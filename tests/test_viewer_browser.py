@@ -350,6 +350,53 @@ def test_controls_fit_a_laptop_window_and_bad_values_are_refused_with_the_reason
         page.close()
 
 
+#: Every element of `sel` inside the element `box`: its right edge within the box's content
+#: (its right edge less its right padding, where the panel's scrollbar sits) and the box not
+#: wider than it shows (nothing cut off at its edge); the offenders' text, or [] if none.
+_OVERFLOWING_JS = """([box, sel]) => {
+    const b = document.querySelector(box);
+    if (!b) return ['no ' + box];
+    const right = b.getBoundingClientRect().right - parseFloat(getComputedStyle(b).paddingRight);
+    const out = [...b.querySelectorAll(sel)]
+        .filter(e => e.getBoundingClientRect().right > right + 0.5)
+        .map(e => e.innerText);
+    if (b.scrollWidth > b.clientWidth) out.push(box + ' scrolls sideways');
+    return out;
+}"""
+
+
+def test_a_long_status_and_trial_list_fit_a_laptop_window(served: str, browser: Browser) -> None:
+    """At 1366 x 768 no status item and no trial is cut at the panel's edge (issue 34: the
+    status read "single view alo..." and the trial list "#33 s..."). The demo's status
+    carries the longest item the app writes (its world, ~620 px on one line); the trial list
+    is the page's own tally, rendered by the view's code for 40 trials (the newest shown,
+    three-digit times, the longest outcome reason of robot/task.py's and the
+    longest mode name) and put in its place."""
+    from dsteleop.app.viewer.panel import Trial, TrialTally, tally_html
+
+    page = _open(browser, served, *SMALL_WINDOW)
+    try:
+        status = page.locator(".dst-status")
+        _wait(lambda: "world" in status.inner_text(), 30.0, "the demo's world in the status", page)
+        assert "single view along" in status.inner_text()
+        cut = page.evaluate(_OVERFLOWING_JS, [".dst-status", ".dst-item, .dst-status-line"])
+        assert not cut, cut
+        tally = TrialTally()
+        tally.trials = [Trial(n, n % 3 == 0, "on_table", 100.0 + n, "conf_scalar")
+                        for n in range(1, 41)]  # fmt: skip
+        cut = page.evaluate(
+            """([html, js]) => {
+                const old = document.querySelector('.dst-tally');
+                old.outerHTML = html;                    // measured before React redraws
+                return eval(js)(['.dst-tally', '.dst-trial']);
+            }""",
+            [tally_html(tally), _OVERFLOWING_JS],
+        )
+        assert not cut, cut
+    finally:
+        page.close()
+
+
 def test_two_tabs_see_one_session_and_the_loop_rate_holds(served: str, browser: Browser) -> None:
     pages = [_open(browser, served, 800, 500) for _ in range(2)]
     try:
