@@ -712,6 +712,40 @@ def test_viewer_posts_valid_values_and_shows_why_it_refuses_others() -> None:
         viewer.close()
 
 
+def test_the_mode_control_says_why_ds_is_the_default() -> None:
+    """The page's Mode dropdown starts at DS and carries the hint that says why, with the
+    figures and where they are (docs/operator.md): read from the server's own registry of
+    inputs, as viser sends it to every tab."""
+    from dsteleop.app.loop.broadcast import Broadcaster
+    from dsteleop.app.loop.controls import Controls
+    from dsteleop.app.viewer.panel import MODE_HINT
+    from dsteleop.app.viewer.server import Viewer, ViewerConfig
+
+    viewer = Viewer(Broadcaster(), Controls(), None, ViewerConfig(port=0), source="demo")
+    try:
+        inputs = viewer.server.gui._gui_input_handle_from_uuid.values()
+        modes = [h for h in inputs if h.label == "Mode"]
+        assert len(modes) == 1, [h.label for h in inputs]
+        (mode,) = modes
+        options = viewer._mode.options  # the page's own Mode control is this one
+        assert mode is viewer._mode and mode.value == "DS" and "DSC" in options
+        assert mode.hint == MODE_HINT
+        assert MODE_HINT.startswith("DS is the default")
+        assert "docs/operator.md" in MODE_HINT and "p = 0.38" in MODE_HINT
+        # The figures it gives are the ones of the table it names.
+        doc = (REPO / "docs" / "operator.md").read_text(encoding="utf-8")
+        section = doc.split("## The demo with inferred goals\n", 1)[1].split("\n## ", 1)[0]
+        rows = dict(
+            re.findall(r"^\| (DSC|DS) (?:\(the default\) )?\| (\d+ \| [\d.]+) \|", section, re.M)
+        )
+        (dsc_n, dsc_t), (ds_n, ds_t) = (rows[m].split(" | ") for m in ("DSC", "DS"))
+        assert f"DSC succeeded in {dsc_n} of 20 ({dsc_t} s) and DS in {ds_n} ({ds_t} s)" in (
+            MODE_HINT
+        ), (rows, MODE_HINT)
+    finally:
+        viewer.close()
+
+
 def test_port_in_use_is_one_clear_error(busy_port: int) -> None:
     from dsteleop.app.loop.broadcast import Broadcaster
     from dsteleop.app.loop.controls import Controls

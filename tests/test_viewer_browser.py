@@ -41,6 +41,8 @@ from tests.deadlines import HUNG_S, held_rate_floor
 if TYPE_CHECKING:
     from playwright.sync_api import Browser, Page
 
+from dsteleop.app.viewer.panel import MODE_HINT
+
 REPO = Path(__file__).resolve().parents[1]
 ARTIFACTS = REPO / "test-artifacts"
 CHROMIUM = Path("/usr/bin/chromium")
@@ -335,6 +337,16 @@ def test_controls_fit_a_laptop_window_and_bad_values_are_refused_with_the_reason
         for name, control in controls.items():
             assert _on_screen(page, control), (name, control.bounding_box())
         assert page.evaluate("window.scrollY") == 0
+        # Why DS is the default: the Mode control's hint, a tooltip over the page while the
+        # pointer is on the control, on screen and taking no room from the controls.
+        controls["mode"].hover()
+        hint = page.get_by_role("tooltip").filter(has_text="DS is the default")
+        hint.wait_for(state="visible")
+        assert hint.inner_text().strip() == MODE_HINT
+        assert _on_screen(page, hint), hint.bounding_box()
+        page.mouse.move(700, 400)
+        for name, control in controls.items():
+            assert _on_screen(page, control), (name, control.bounding_box())
         legend = page.locator(".u-legend").first
         legend.wait_for(state="attached")
         text = legend.inner_text()
