@@ -74,6 +74,16 @@ PLOT_CAPTION = (
     "alpha per dimension over the last 10 s: 0 the operator alone, 1 the robot alone "
     "(the colour of each line is named below it)"
 )
+#: Why the Mode dropdown starts at DS: the page's hint on that control (viser shows it on
+#: hovering the label). The figures are docs/operator.md's "The demo with inferred goals"
+#: (`scripts/demo_goals.py --goal infer --seeds 0-19`, every mode); this is the one place the
+#: page and tests/test_viewer.py read it from.
+MODE_HINT = (
+    "DS is the default: with inferred goals (the demo, seeds 0-19) DSC succeeded in 17 of 20 "
+    "(13.3 s) and DS in 14 (12.7 s), but on the same seeds the difference is not significant "
+    "(McNemar exact p = 0.38), and the told-goal demo and the study support DS. Every "
+    'mode\'s figures: docs/operator.md, "The demo with inferred goals".'
+)
 #: The plot's legend: the dimensions' names and colours; no values (uPlot shows values only
 #: under a cursor and "--" otherwise).
 PLOT_LEGEND: dict[str, Any] = {"show": True, "live": False}

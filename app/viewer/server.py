@@ -59,6 +59,7 @@ from dsteleop.app.loop.controls import Controls
 from dsteleop.app.session.schema import TickRecord
 from dsteleop.app.viewer.panel import (
     DEMO_NOTE,
+    MODE_HINT,
     PLOT_AXES,
     PLOT_CAPTION,
     PLOT_LEGEND,
@@ -398,7 +399,7 @@ class Viewer:
         gui = self.server.gui
         self._add_stop()
         names = mode_names()
-        mode = gui.add_dropdown("Mode", names, initial_value=names[0])
+        mode = gui.add_dropdown("Mode", names, initial_value=names[0], hint=MODE_HINT)
         self._mode = mode
         self._mode_followed = names[0]  # the loop's mode the dropdown last followed
 
