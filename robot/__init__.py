@@ -7,6 +7,7 @@ Public API (see docs/robot.md, docs/robots.md):
                                          state, geometry() and poses() for a viewer
     RobotConfig, BulletArmState, Contact control settings and the per-tick read-back of the
                                          simulated arm (`arm.BulletArm`)
+    Workspace                            the box its palm target is clamped into
     PickPlaceTask, TaskConfig, Phase, EventKind, TaskEvent, Outcome
     run_autonomous, goal_seeking_step, noise_free, RunResult   the scripted alpha = 1 run
     SceneGeometry, ScenePoses, VisualGeometry                  viewer export (no pybullet)

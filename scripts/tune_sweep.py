@@ -54,6 +54,7 @@ from dsteleop.app.study.sweep import (
     design_cells,
 )
 from dsteleop.arbitration import ArbitrationConfig
+from dsteleop.errors import DsteleopError, FormatError, InputError
 
 #: The tune options that set a cell's world, in `AXES` order (app/cli/world_options.py).
 WORLD_OPTIONS: tuple[str, ...] = ("--goal-sigma", "--delay", "--depth-sigma")
@@ -120,17 +121,18 @@ def merge_best(bests: dict[str, dict[str, Any]]) -> dict[str, Any]:
         bests: per mode, its `dsteleop tune` best.json (in the order of `--modes`).
 
     Raises:
-        ValueError: a file without `arbitration` or `objective.params`, two modes that tuned
-            one parameter to different values, or modes tuned from different bases.
+        FormatError: a file without `arbitration` or `objective.params`.
+        InputError: two modes that tuned one parameter to different values, or modes tuned
+            from different bases.
     """
     tuned: dict[str, tuple[str, Any]] = {}
     for mode, best in bests.items():
         params = best.get("objective", {}).get("params")
         if not isinstance(best.get("arbitration"), dict) or not isinstance(params, dict):
-            raise ValueError(f"{mode}: not a tune best.json (no arbitration or objective.params)")
+            raise FormatError(f"{mode}: not a tune best.json (no arbitration or objective.params)")
         for k, v in params.items():
             if k in tuned and tuned[k][1] != v:
-                raise ValueError(f"{k} tuned by {tuned[k][0]} and {mode} to different values")
+                raise InputError(f"{k} tuned by {tuned[k][0]} and {mode} to different values")
             tuned[k] = (mode, v)
     first, *_ = bests.values()
     base = {k: v for k, v in first["arbitration"].items() if k not in tuned}
@@ -138,7 +140,7 @@ def merge_best(bests: dict[str, dict[str, Any]]) -> dict[str, Any]:
         other = {k: v for k, v in best["arbitration"].items() if k not in tuned}
         if other != base:
             diff = sorted(k for k in base.keys() | other.keys() if base.get(k) != other.get(k))
-            raise ValueError(f"{mode} was tuned from another base ({', '.join(diff)})")
+            raise InputError(f"{mode} was tuned from another base ({', '.join(diff)})")
     return {k: tuned[k][1] if k in tuned else v for k, v in first["arbitration"].items()}
 
 
@@ -327,7 +329,11 @@ def main(argv: list[str] | None = None) -> int:
             commands.append(f"# {mode}: reused from {best}")
         if not args.dry_run:
             args.out.mkdir(parents=True, exist_ok=True)
-            data = cell_file(cell, bests, args.world)
+            try:
+                data = cell_file(cell, bests, args.world)
+            except DsteleopError as e:  # the runs' best.json files do not merge: one line
+                sys.stderr.write(f"tune_sweep: {name}: {e}\n")
+                return 2
             (args.out / f"{name}.json").write_text(json.dumps(data, indent=2) + "\n")
     if not args.dry_run:
         text = readme(commands, args, len(todo), time.perf_counter() - t0)

@@ -176,7 +176,7 @@ def _parser(command: str) -> argparse.ArgumentParser:
 
 
 @pytest.fixture
-def tally() -> Iterator[OutputKind]:
+def tally() -> Iterator[OutputKind[Path]]:
     kind = outputs.register(TALLY)
     try:
         yield kind
@@ -184,7 +184,7 @@ def tally() -> Iterator[OutputKind]:
         outputs.unregister(kind)
 
 
-def test_an_output_from_a_test_file_is_everywhere(tally: OutputKind, tmp_path: Path) -> None:
+def test_an_output_from_a_test_file_is_everywhere(tally: OutputKind[Path], tmp_path: Path) -> None:
     assert outputs.kind("tally") is tally and tally in outputs.registered()
     for command in ("run", "serve"):
         parsed = _parser(command).parse_args(["--tally", str(tmp_path / "t.json")])
@@ -197,7 +197,7 @@ def test_an_output_from_a_test_file_is_everywhere(tally: OutputKind, tmp_path: P
 
 
 def test_a_run_feeds_a_new_output_every_tick_session_and_episode(
-    tally: OutputKind, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    tally: OutputKind[Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "t.json"
     assert main(["run", "--source", "demo", "--tally", str(out), "--max-seconds", "2"]) == 0
@@ -219,14 +219,14 @@ def test_a_run_feeds_a_new_output_every_tick_session_and_episode(
 
 
 def test_a_bad_value_of_a_new_output_is_one_line_and_exit_2(
-    tally: OutputKind, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    tally: OutputKind[Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     assert main(["run", "--source", "demo", "--tally", str(tmp_path / "t.txt")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"dsteleop run: error: --tally: expected a .json file, got {tmp_path / 't.txt'}"]
 
 
-def test_an_unknown_or_twice_registered_output_is_a_config_error(tally: OutputKind) -> None:
+def test_an_unknown_or_twice_registered_output_is_a_config_error(tally: OutputKind[Path]) -> None:
     with pytest.raises(ConfigError, match="unknown output 'nope'"):
         outputs.kind("nope")
     with pytest.raises(ConfigError, match="registered already"):

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import time
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +25,7 @@ from dsteleop.app.session.reader import read_session
 from dsteleop.app.session.schema import Status
 from dsteleop.app.session.writer import META, TICKS
 from dsteleop.arbitration import Mode
+from tests.deadlines import wait_for
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLE = REPO / "recordings" / "demo-DS-spoon"
@@ -56,9 +56,8 @@ def attempts(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[dict[
                 loop.controls.reset()  # the operator gives up on this attempt
             loop.tick(t)
             if k == round(5.0 * RATE_HZ):
-                deadline = time.monotonic() + 10.0  # the recorder thread writes meta.json
-                while time.monotonic() < deadline and not _meta(folder).get("episodes"):
-                    time.sleep(0.05)
+                # The recorder thread writes meta.json.
+                wait_for(lambda: bool(_meta(folder).get("episodes")))
                 seen_live = list(_meta(folder).get("episodes", []))
     finally:
         loop.close()

@@ -19,7 +19,12 @@ from dsteleop.errors import (
 )
 
 PACKAGE = Path(dsteleop.__file__).resolve().parent
-SOURCES = ("app", "arbitration", "robot", "tracking")
+#: The folders scanned: the package's four, and the repository's scripts (they validate their
+#: inputs too: scripts/tune_sweep.py's merge of best.json files).
+SOURCES = (
+    *(PACKAGE / d for d in ("app", "arbitration", "robot", "tracking")),
+    PACKAGE.parent / "scripts",
+)
 
 
 def _bare_value_errors(path: Path) -> list[int]:
@@ -35,8 +40,9 @@ def _bare_value_errors(path: Path) -> list[int]:
 
 
 def test_no_module_raises_a_bare_value_error() -> None:
-    files = [p for d in SOURCES for p in sorted((PACKAGE / d).resolve().rglob("*.py"))]
+    files = [p for d in SOURCES for p in sorted(d.resolve().rglob("*.py"))]
     assert len(files) > 100  # the scan reads the package, not an empty folder
+    assert any(p.parent.name == "scripts" for p in files)  # and the scripts
     bare = {
         str(p.relative_to(PACKAGE.parent)): lines for p in files if (lines := _bare_value_errors(p))
     }

@@ -34,6 +34,7 @@ from dsteleop.tracking.mapping import WorkspaceMapping
 from dsteleop.tracking.pipeline import HandTracker, TrackingStream
 from dsteleop.tracking.sources import VideoFileSource
 from dsteleop.tracking.synthetic import SyntheticSource, scripted_trajectory
+from tests.deadlines import HUNG_S
 
 from .fakes import DT, FramedHand, ScriptedHand, fake_world, state
 
@@ -270,7 +271,7 @@ def test_a_delayed_input_is_ready_once_it_is_the_delay_old() -> None:
     try:
         hand.start()
         for _ in range(5):
-            ready = arrivals.wait_newer(time.monotonic() + 1.0)
+            ready = arrivals.wait_newer(time.monotonic() + HUNG_S)
             now = time.monotonic()
             assert ready is not None and ready <= now
             inp = hand.poll(now)

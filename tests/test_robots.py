@@ -21,6 +21,7 @@ from dsteleop.robot.description import (
     shipped_robots,
 )
 from dsteleop.tracking.mapping import finger_mix, human_openness, robot_openness
+from tests.deadlines import wait_for
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -324,9 +325,7 @@ def test_the_page_draws_the_panda_and_its_one_gauge_of_fingers() -> None:
             clock.advance(loop.config.dt_s)
             time.sleep(0.005)
         assert record.dims[6:] == ("gripper",) and record.X_current.openness.shape == (1,)
-        deadline = time.monotonic() + 10.0
-        while viewer.stats.panel_updates < 2 and time.monotonic() < deadline:
-            time.sleep(0.05)
+        wait_for(lambda: viewer.stats.panel_updates >= 2)
         assert viewer.stats.scene_updates >= 2 and viewer.stats.errors == 0
         frames = set(viewer.scene.frames)
         assert {"robot/panda_hand", "robot/panda_leftfinger", "robot/panda_rightfinger"} <= frames

@@ -18,6 +18,7 @@ import numpy as np
 import pyarrow.parquet as pq  # type: ignore[import-untyped]
 import pytest
 
+from dsteleop.app.jsonable import jsonable
 from dsteleop.app.lerobot import layout
 from dsteleop.app.lerobot.check import problems
 from dsteleop.app.lerobot.reader import read_dataset
@@ -26,7 +27,7 @@ from dsteleop.app.plants.recorded import recorded_pair
 from dsteleop.app.replay.core import replay_session
 from dsteleop.app.session.reader import Session, read_session
 from dsteleop.app.session.schema import SCHEMA, TickRecord, decode, encode
-from dsteleop.app.session.writer import META, TICKS, clean
+from dsteleop.app.session.writer import META, TICKS
 from dsteleop.arbitration import Mode
 from dsteleop.robot.description import description_from_record, load_description
 from dsteleop.robot.kinematics import ArmChain
@@ -74,7 +75,7 @@ def test_joints_round_trip_through_json_at_full_precision() -> None:
     q[3] = np.nan  # a joint the robot did not report: null in JSON, NaN again
     r = dataclasses.replace(r, plant=dataclasses.replace(r.plant, joints=q), joints_reset=q0)
     # As the session writer writes it (NaN as null: JSON has none).
-    d = json.loads(json.dumps(clean(encode(r)), allow_nan=False))
+    d = json.loads(json.dumps(jsonable(encode(r)), allow_nan=False))
     assert d["joints"][3] is None and len(d["joints"]) == 15 and d["joints_reset"] == q0.tolist()
     back = decode(d, r.dims)
     assert back.plant.joints is not None and back.joints_reset is not None

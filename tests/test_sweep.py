@@ -18,6 +18,7 @@ from dsteleop.app.cli.main import main
 from dsteleop.app.operator.world import Impairments
 from dsteleop.app.study import planar, sweep
 from dsteleop.arbitration import Mode
+from dsteleop.errors import FormatError, InputError
 
 # --- the grid ---------------------------------------------------------------------------------
 
@@ -423,13 +424,13 @@ def test_tune_sweep_merges_the_modes_best_files_as_both_json() -> None:
     # Conflicts are refused: one parameter tuned two ways, or modes from different bases.
     clash = json.loads(json.dumps(bests))
     clash["scalar"]["objective"]["params"]["kappa"] = 1.0
-    with pytest.raises(ValueError, match="kappa tuned by DS and scalar"):
+    with pytest.raises(InputError, match="kappa tuned by DS and scalar"):
         ts.merge_best(clash)
     other = json.loads(json.dumps(bests))
     other["scalar"]["arbitration"]["v_max_mps"] = 0.3
-    with pytest.raises(ValueError, match=r"scalar was tuned from another base \(v_max_mps\)"):
+    with pytest.raises(InputError, match=r"scalar was tuned from another base \(v_max_mps\)"):
         ts.merge_best(other)
-    with pytest.raises(ValueError, match=r"not a tune best\.json"):
+    with pytest.raises(FormatError, match=r"not a tune best\.json"):
         ts.merge_best({"DS": both})
 
 
@@ -447,7 +448,7 @@ def test_tune_sweep_dry_run_prints_every_command_and_writes_nothing(tmp_path: Pa
 
 
 def test_tune_sweep_reuses_a_mode_tuned_elsewhere_and_refuses_a_missing_one(
-    tmp_path: Path,
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """`--reuse DS=DIR`: DS as tuned in DIR merged with the modes tuned here (the scalar given
     DS's trial count); its runs are read, not rerun; a missing run is one line, exit 2."""
@@ -465,7 +466,17 @@ def test_tune_sweep_reuses_a_mode_tuned_elsewhere_and_refuses_a_missing_one(
     assert data["arbitration"] == ts.merge_best(bests)
     assert set(data["objective"]) == {"scalar", "DS"}
     assert f"--reuse DS={elsewhere}" in (out / "README.md").read_text()
-    (elsewhere / "runs" / "goal0_delay0.2_depth0.015" / "DS" / "best.json").unlink()
+    # A run's best.json that is not one: one line naming the cell, exit 2, no traceback.
+    broken = elsewhere / "runs" / "goal0_delay0.2_depth0.015" / "DS" / "best.json"
+    broken.write_text(json.dumps({"arbitration": bests["DS"]["arbitration"]}))
+    capsys.readouterr()
+    assert ts.main([*args, "--reuse", f"DS={elsewhere}"]) == 2
+    err = capsys.readouterr().err
+    assert (
+        err == "tune_sweep: goal0_delay0.2_depth0.015: DS: not a tune best.json (no "
+        "arbitration or objective.params)\n"
+    )
+    broken.unlink()
     with pytest.raises(SystemExit) as exc:
         ts.main([*args, "--reuse", f"DS={elsewhere}"])
     assert exc.value.code == 2

@@ -32,6 +32,7 @@ from dsteleop.tracking import (
     scripted_trajectory,
 )
 from dsteleop.tracking.sources import SourceSpec
+from tests.deadlines import HUNG_S, wait_for
 
 
 def write_video(path: Path, n: int, size: tuple[int, int] = (64, 48), fps: float = 25.0) -> None:
@@ -273,10 +274,8 @@ def test_stream_with_slow_tracker_drops_stale_frames_and_serves_the_newest() -> 
 def test_stream_over_a_file_like_source_tracks_every_frame() -> None:
     src = SyntheticSource(scripted_trajectory(), fps=30.0, duration_s=2.0)
     with TrackingStream(src, SlowTracker(0.002)) as stream:
-        stream.wait_for(60, timeout_s=10.0)
-        deadline = time.monotonic() + 10.0
-        while not stream.finished and time.monotonic() < deadline:
-            time.sleep(0.01)
+        stream.wait_for(60, timeout_s=HUNG_S)
+        wait_for(lambda: stream.finished)
     assert stream.dropped == 0 and stream.tracked == 61
 
 
@@ -288,9 +287,7 @@ def test_stream_reports_a_failing_source() -> None:
             return super().read()
 
     stream = TrackingStream(Failing(scripted_trajectory(), duration_s=5.0)).start()
-    deadline = time.monotonic() + 5.0
-    while not stream.finished and time.monotonic() < deadline:
-        time.sleep(0.01)
+    wait_for(lambda: stream.finished)
     stream.stop()
     assert isinstance(stream.error, DsteleopError)
     assert stream.tracked == 3

@@ -30,6 +30,7 @@ from dsteleop.app.ports import HumanInput
 from dsteleop.app.session.schema import Status, TickRecord
 from dsteleop.errors import DsteleopError
 from dsteleop.robot.scene import SceneGeometry, ScenePoses
+from tests.deadlines import HUNG_S, held_rate_floor, wait_for
 
 if TYPE_CHECKING:
     from dsteleop.app.compose import Built
@@ -624,14 +625,14 @@ def test_viewer_follows_a_live_loop_and_never_posts_on_its_own() -> None:
             loop.tick(loop.clock.now())
             _manual_clock(loop).advance(loop.config.dt_s)
             time.sleep(0.005)
-        deadline = time.monotonic() + 10.0
-        while viewer.stats.panel_updates < 2 and time.monotonic() < deadline:
-            time.sleep(0.05)
+        wait_for(lambda: viewer.stats.panel_updates >= 2)
         assert viewer.stats.scene_updates >= 2 and viewer.stats.panel_updates >= 2
         assert viewer.stats.errors == 0
         assert viewer.scene.frames  # drawn from the robot's description
         # The page's alpha plot: both axes say what they show, with units.
-        x_axis, y_axis = (a["label"] for a in viewer._plot.axes)
+        plot = viewer._plot
+        assert plot is not None and plot.axes is not None
+        x_axis, y_axis = (a["label"] for a in plot.axes)
         assert "[s]" in x_axis and "alpha" in y_axis and "robot" in y_axis, (x_axis, y_axis)
         assert viewer.scene.robot_hand is None  # the real hand is drawn, not a proxy
         assert loop.controls.take().empty  # a sink: nothing is posted without a person
@@ -662,14 +663,12 @@ def test_the_page_shows_a_latched_stop_and_enables_resume_only_then() -> None:
         return out
 
     def shown(stopped: bool) -> bool:
-        deadline = time.monotonic() + 10.0
-        while time.monotonic() < deadline:
-            if viewer._resume.disabled is not stopped and (
-                f'data-stopped="{int(stopped)}"' in viewer._stop_note.content
-            ):
-                return True
-            time.sleep(0.05)
-        return False
+        return wait_for(
+            lambda: (
+                viewer._resume.disabled is not stopped
+                and f'data-stopped="{int(stopped)}"' in viewer._stop_note.content
+            )
+        )
 
     try:
         viewer.start()
@@ -849,10 +848,13 @@ def test_serve_stops_cleanly_with_a_complete_recording(tmp_path: Path, sig: int)
     assert code == 0, err
     summary = json.loads(out.strip().splitlines()[-1])
     assert summary["stopped_by"] == signal.Signals(sig).name
-    assert summary["timing"]["ticks"] > 30
+    # It ran and recorded before the signal: 3 s at 30 Hz is 90 ticks on an idle machine, but a
+    # loop starting beside busy processes made 27 (load ~16 on 2 cores); 10 is a third of a
+    # second's worth, and none if the loop never started.
+    assert summary["timing"]["ticks"] >= 10
     session = read_session(Path(summary["recording"]))
     assert session.folder.parent == tmp_path
-    assert session.complete and len(session.records) > 30
+    assert session.complete and len(session.records) >= 10
     assert "Traceback" not in err
 
 
@@ -903,6 +905,17 @@ def _stalled_client(port: int) -> socket.socket:
 
 @pytest.mark.slow
 def test_a_stalled_tab_never_slows_the_loop() -> None:
+    """Two clients that never read: the loop keeps ticking and the view keeps drawing.
+
+    Judged so that a busy 2-core machine passes and a blocked loop fails (tests/deadlines.py):
+    the loop's start is waited for (up to HUNG_S: under load its first tick came more than the
+    2 s this test once slept), then, after 2 s for the stalled clients' buffers to fill, the
+    loop's rate over 4 s of its own ticks must be at least `held_rate_floor` (40 % of 30 Hz:
+    a loop waiting on a client that never reads stops, one waiting 0.2 s a tick on it falls to
+    ~4 Hz; a starved one kept 17.2 Hz at load 14.5), and the view must have drawn a quarter of
+    those ticks (0 when blocked; 46 of 69 in that run). The 30 Hz and jitter targets are
+    `dsteleop bench --only viewer`'s.
+    """
     from dsteleop.app.viewer.server import Viewer, ViewerConfig
 
     loop = _demo_loop(realtime=True).loop
@@ -913,6 +926,7 @@ def test_a_stalled_tab_never_slows_the_loop() -> None:
     runner = threading.Thread(target=loop.run, daemon=True)
     try:
         runner.start()
+        started = wait_for(lambda: sub.latest() is not None)
         time.sleep(2.0)  # the stalled clients' buffers fill up
         first = sub.latest()
         updates = viewer.stats.scene_updates
@@ -926,11 +940,10 @@ def test_a_stalled_tab_never_slows_the_loop() -> None:
             s.close()
         viewer.close()
         loop.close()
+    assert started, f"the loop did not tick within {HUNG_S:g} s"
     assert first is not None and last is not None and last.k > first.k
     rate = (last.k - first.k) / (last.t_s - first.t_s)
-    # Held, not blocked: a loop waiting on a stalled client would fall to a few Hz. The margin
-    # (80 % of 30 Hz) absorbs a shared 2-core machine; the 30 Hz / p99 jitter targets are
-    # measured by `dsteleop bench --only viewer`, not here.
-    assert rate >= 24.0
-    assert viewer.stats.scene_updates - updates >= 60  # the view kept drawing (>= 15 Hz)
+    drawn = viewer.stats.scene_updates - updates
+    assert rate >= held_rate_floor(loop.config.rate_hz), rate
+    assert drawn >= (last.k - first.k) / 4, (drawn, last.k - first.k)
     assert viewer.stats.errors == 0

@@ -10,7 +10,9 @@ in the status line, the tally of trials after a success, the legend's wording; a
 768 every control is on screen, and a value typed into a parameter's box that the loop
 would refuse is refused there, with the reason.
 Uses Debian's system Chromium (`/usr/bin/chromium`, installed by .ci/run); without it the
-tests skip with the reason. WebGL runs in software there, so waits are generous but bounded.
+tests skip with the reason. WebGL runs in software there, so waits are generous but
+bounded: a wait ends when what it waits for happens, at the latest after tests/deadlines.py's
+HUNG_S.
 A screenshot is saved under test-artifacts/; `DSTELEOP_UPDATE_SCREENSHOT=1` also copies it to
 docs/screenshot.png (the README's).
 """
@@ -33,6 +35,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pytest
+
+from tests.deadlines import HUNG_S, held_rate_floor
 
 if TYPE_CHECKING:
     from playwright.sync_api import Browser, Page
@@ -178,7 +182,7 @@ def test_page_shows_the_scene_and_live_gauges(served: str, browser: Browser) -> 
         for values in first.values():
             assert all(0.0 <= v <= 1.0 for v in values.values()), values
         # The demo operator moves: some value of some gauge changes within seconds.
-        _wait(lambda: _gauges(page) != first, 30.0, "the gauges to change", page)
+        _wait(lambda: _gauges(page) != first, HUNG_S, "the gauges to change", page)
         status = _status(page)
         assert status["mode"] == "DS" and status["status"] in (
             "tracking",
@@ -187,12 +191,12 @@ def test_page_shows_the_scene_and_live_gauges(served: str, browser: Browser) -> 
             "finished",
         )
         ticks = int(status["tick"])
-        _wait(lambda: int(_status(page)["tick"]) != ticks, 10.0, "the loop to tick", page)
+        _wait(lambda: int(_status(page)["tick"]) != ticks, HUNG_S, "the loop to tick", page)
         # Dismiss viser's "software WebGL" notice, then keep a screenshot.
         close = page.locator(".mantine-Notification-closeButton")
         if close.count():
             close.first.click()
-        _wait(lambda: _status(page)["status"] == "tracking", 40.0, "a tracked hand", page)
+        _wait(lambda: _status(page)["status"] == "tracking", HUNG_S, "a tracked hand", page)
         page.wait_for_timeout(1500)
         ARTIFACTS.mkdir(exist_ok=True)
         shot = ARTIFACTS / "viewer.png"
@@ -214,25 +218,25 @@ def test_controls_in_the_page_reach_the_loop(served: str, browser: Browser) -> N
         assert mode.input_value() == "DS"
         mode.click()
         page.get_by_role("option", name="manual", exact=True).click()
-        _wait(lambda: _status(page)["mode"] == "manual", 20.0, "the loop in manual mode", page)
+        _wait(lambda: _status(page)["mode"] == "manual", HUNG_S, "the loop in manual mode", page)
         # Manual gives the operator everything on every dimension, once arbitrating.
         _wait(
             lambda: (
                 _status(page)["status"] != "tracking"
                 or all(v["alpha"] == 0.0 for v in _gauges(page).values())
             ),
-            20.0,
+            HUNG_S,
             "alpha = 0 everywhere",
             page,
         )
         mode.click()
         page.get_by_role("option", name="DS", exact=True).click()
-        _wait(lambda: _status(page)["mode"] == "DS", 20.0, "the loop back in DS", page)
+        _wait(lambda: _status(page)["mode"] == "DS", HUNG_S, "the loop back in DS", page)
         # Reset task: the loop restarts the task, its tick count starts again from 0.
-        _wait(lambda: int(_status(page)["tick"]) > 90, 20.0, "three seconds of ticks", page)
+        _wait(lambda: int(_status(page)["tick"]) > 90, HUNG_S, "three seconds of ticks", page)
         before = int(_status(page)["tick"])
         page.get_by_role("button", name="Reset task").click()
-        _wait(lambda: int(_status(page)["tick"]) < before, 20.0, "the task to restart", page)
+        _wait(lambda: int(_status(page)["tick"]) < before, HUNG_S, "the task to restart", page)
     finally:
         page.close()
 
@@ -286,7 +290,7 @@ def test_status_after_a_success_and_the_recording_indicator(
         tally = page.locator(".dst-tally")
         _wait(
             lambda: int(tally.get_attribute("data-successes") or 0) >= 1,
-            10.0,
+            HUNG_S,
             "the success in the tally",
             page,
         )
@@ -296,7 +300,7 @@ def test_status_after_a_success_and_the_recording_indicator(
         assert "success" in tally.inner_text() and "Trials since start" in tally.inner_text()
         _wait(
             lambda: int(rec.evaluate("e => e.dataset.episodes")) >= 1,
-            10.0,
+            HUNG_S,
             "the episode counted in the indicator",
             page,
         )
@@ -354,7 +358,7 @@ def test_controls_fit_a_laptop_window_and_bad_values_are_refused_with_the_reason
         kappa = page.locator("input.mantine-NumberInput-input").first
         kappa.fill("0")  # outside kappa's range (0.5 to 20); the box keeps focus
         note = page.locator(".dst-refused")
-        _wait(lambda: note.get_attribute("data-refused") == "kappa", 20.0, "the refusal", page)
+        _wait(lambda: note.get_attribute("data-refused") == "kappa", HUNG_S, "the refusal", page)
         assert "kappa not applied: kappa must be in [0.5, 20]" in note.inner_text()
         assert "the loop keeps" in note.inner_text()
         assert _on_screen(page, note)
@@ -362,10 +366,65 @@ def test_controls_fit_a_laptop_window_and_bad_values_are_refused_with_the_reason
         page.close()
 
 
+#: Every element of `sel` inside the element `box`: its right edge within the box's content
+#: (its right edge less its right padding, where the panel's scrollbar sits) and the box not
+#: wider than it shows (nothing cut off at its edge); the offenders' text, or [] if none.
+_OVERFLOWING_JS = """([box, sel]) => {
+    const b = document.querySelector(box);
+    if (!b) return ['no ' + box];
+    const right = b.getBoundingClientRect().right - parseFloat(getComputedStyle(b).paddingRight);
+    const out = [...b.querySelectorAll(sel)]
+        .filter(e => e.getBoundingClientRect().right > right + 0.5)
+        .map(e => e.innerText);
+    if (b.scrollWidth > b.clientWidth) out.push(box + ' scrolls sideways');
+    return out;
+}"""
+
+
+def test_a_long_status_and_trial_list_fit_a_laptop_window(served: str, browser: Browser) -> None:
+    """At 1366 x 768 no status item and no trial is cut at the panel's edge (issue 34: the
+    status read "single view alo..." and the trial list "#33 s..."). The demo's status
+    carries the longest item the app writes (its world, ~620 px on one line); the trial list
+    is the page's own tally, rendered by the view's code for 40 trials (the newest shown,
+    three-digit times, the longest outcome reason of robot/task.py's and the
+    longest mode name) and put in its place."""
+    from dsteleop.app.viewer.panel import Trial, TrialTally, tally_html
+
+    page = _open(browser, served, *SMALL_WINDOW)
+    try:
+        status = page.locator(".dst-status")
+        _wait(lambda: "world" in status.inner_text(), HUNG_S, "the demo's world", page)
+        assert "single view along" in status.inner_text()
+        cut = page.evaluate(_OVERFLOWING_JS, [".dst-status", ".dst-item, .dst-status-line"])
+        assert not cut, cut
+        tally = TrialTally()
+        tally.trials = [Trial(n, n % 3 == 0, "on_table", 100.0 + n, "conf_scalar")
+                        for n in range(1, 41)]  # fmt: skip
+        cut = page.evaluate(
+            """([html, js]) => {
+                const old = document.querySelector('.dst-tally');
+                old.outerHTML = html;                    // measured before React redraws
+                return eval(js)(['.dst-tally', '.dst-trial']);
+            }""",
+            [tally_html(tally), _OVERFLOWING_JS],
+        )
+        assert not cut, cut
+    finally:
+        page.close()
+
+
 def test_two_tabs_see_one_session_and_the_loop_rate_holds(served: str, browser: Browser) -> None:
+    """Two tabs on one served session: the loop's own rate (from its snapshots, as the page
+    shows it) stays at least `held_rate_floor` of its 30 Hz, and both tabs show the same tick
+    at the same moment.
+
+    The floor is tests/deadlines.py's, 40 %, not the 80 % (24 Hz) this test once asked: two
+    software-rendering tabs, the served process and the test share 2 cores, and a loop starved
+    beside busy processes kept 57 % (load 14.5), while a loop that waits on its tabs stops or
+    falls to a few Hz. The 30 Hz and jitter targets are `dsteleop bench --only viewer`'s."""
     pages = [_open(browser, served, 800, 500) for _ in range(2)]
     try:
-        _wait(lambda: all(_status(p).get("rateHz") for p in pages), 30.0, "loop rates", pages[0])
+        _wait(lambda: all(_status(p).get("rateHz") for p in pages), HUNG_S, "loop rates", pages[0])
         rates: list[float] = []
         offsets: list[float] = []  # tab 2's tick minus tab 1's, at the same moment
         for _ in range(6):
@@ -376,10 +435,7 @@ def test_two_tabs_see_one_session_and_the_loop_rate_holds(served: str, browser: 
                 offsets.append(int(b["tick"]) - int(a["tick"]) - 30.0 * (t1 - t0))
             pages[0].wait_for_timeout(500)
         assert len(rates) >= 6
-        # The loop's own rate, measured from its snapshots, holds with two software-rendering
-        # tabs on the same 2 cores: 80 % of 30 Hz at least (a blocked loop falls to a few Hz;
-        # the rate and jitter targets are measured by `dsteleop bench --only viewer`).
-        assert statistics.median(rates) >= 24.0, rates
+        assert statistics.median(rates) >= held_rate_floor(30.0), rates
         # Both tabs follow the same session: the same tick at the same moment, within
         # half a second (panel updates at 10 Hz, a busy software-rendering browser).
         assert offsets and statistics.median(np.abs(offsets)) <= 15.0, offsets
@@ -410,13 +466,13 @@ def _halted(page: Page, what: str) -> None:
     The demo's trial may end on its own between the page seeing the arm move and the stop
     (on a fast machine it did: `finished`, success): the stop stays latched, and once the
     next trial starts (serve resets `--reset-after` 4 s after an outcome) it shows
-    `stopped`; so the wait is for `stopped` itself, within 15 s plus that reset."""
+    `stopped`; so the wait is for `stopped` itself, within HUNG_S plus that reset."""
 
     def stopped() -> bool:
         st = _status(page)
         return st["stopped"] == "1" and float(st["cmdMps"]) == 0.0 and st["status"] == "stopped"
 
-    _wait(stopped, 15.0 + 4.0 + 5.0, f"the robot stopped ({what})", page)
+    _wait(stopped, HUNG_S + 4.0 + 5.0, f"the robot stopped ({what})", page)
     st = _status(page)
     assert "ROBOT STOPPED" in page.locator(".dst-stop").inner_text()
     assert page.get_by_role("button", name="Resume").is_enabled()
@@ -427,7 +483,8 @@ def _halted(page: Page, what: str) -> None:
         st = _status(page)
         assert st["stopped"] == "1" and float(st["cmdMps"]) == 0.0, st
         assert np.abs(np.subtract(_palm(page), palm)).max() < 5e-4, (what, palm, st)
-    assert int(st["tick"]) > ticks + 30  # the loop ticks on: the stop is the halt, latched
+    # The loop ticks on (2 s, at least held_rate_floor's pace): the stop is the halt, latched.
+    assert int(st["tick"]) > ticks + 2.0 * held_rate_floor(30.0), (ticks, st["tick"])
 
 
 def test_stop_in_the_page_halts_the_robot_until_resume_and_so_do_the_keys(
@@ -447,14 +504,14 @@ def test_stop_in_the_page_halts_the_robot_until_resume_and_so_do_the_keys(
         stop.click()
         _halted(page, "the button")
         resume.click()
-        _wait(lambda: _status(page)["stopped"] == "0", 15.0, "the resume", page)
+        _wait(lambda: _status(page)["stopped"] == "0", HUNG_S, "the resume", page)
         _wait(lambda: _moving(page), 60.0, "the arm moving again after Resume", page)
         assert resume.is_disabled()
         page.evaluate("document.activeElement?.blur()")  # the keys go to the page, no box
         page.keyboard.press("Escape")
         _halted(page, "Escape")
         page.keyboard.press("Shift+R")
-        _wait(lambda: _status(page)["stopped"] == "0", 15.0, "the resume (Shift+R)", page)
+        _wait(lambda: _status(page)["stopped"] == "0", HUNG_S, "the resume (Shift+R)", page)
         _wait(lambda: _moving(page), 60.0, "the arm moving again after Shift+R", page)
     finally:
         # Never leave the shared session stopped for the other tests.
@@ -625,7 +682,7 @@ def test_the_page_shows_the_belief_and_the_confidence_of_a_goal_it_infers(
             assert len(conf) == len(DIMS) and all(0.0 <= float(c) <= 1.0 for c in conf), conf
             # (The panel's HTML is replaced ten times a second: a box may be read mid-swap.)
             block = page.locator(".dst-belief >> visible=true").first
-            _wait(lambda: _on_screen(page, block), 10.0, "the belief on screen", page)
+            _wait(lambda: _on_screen(page, block), HUNG_S, "the belief on screen", page)
             panel = _box(page, page.locator(".dst-tally").first)  # the panel's width
             box = _box(page, block)
             assert (
@@ -637,7 +694,7 @@ def test_the_page_shows_the_belief_and_the_confidence_of_a_goal_it_infers(
             utensil.click()
             page.get_by_role("option", name="spoon", exact=True).click()
             page.get_by_role("button", name="Reset task").click()
-            _wait(lambda: _belief(page)["names"] == "", 30.0, "a told goal", page)
+            _wait(lambda: _belief(page)["names"] == "", HUNG_S, "a told goal", page)
             assert "told its goal" in page.locator(".dst-belief").inner_text()
             assert all(
                 c == ""

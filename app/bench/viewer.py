@@ -28,12 +28,15 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from dsteleop.app.session.schema import TickRecord
 from dsteleop.errors import InputError
+
+if TYPE_CHECKING:
+    from dsteleop.app.loop import TeleopLoop
 
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = (
@@ -48,7 +51,7 @@ CHROMIUM_ARGS = (
 class _Collector:
     """Collects every snapshot's timing from its own subscription (tiny consumer)."""
 
-    def __init__(self, loop: Any) -> None:
+    def __init__(self, loop: TeleopLoop) -> None:
         self._sub = loop.broadcaster.subscribe()
         self.rows: list[tuple[int, float, float, float]] = []
         self._on = threading.Event()

@@ -32,17 +32,26 @@ import shutil
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from dsteleop.app.cli.options import add_config_options, add_video_options, arbitration_config
+from dsteleop.app.jsonable import jsonable
 from dsteleop.app.outpaths import created_dir, output_dir, output_file
 from dsteleop.app.tasks.progress import Progress
 from dsteleop.arbitration import ArbitrationConfig, Mode, registered
 from dsteleop.errors import ConfigError, InputError
 from dsteleop.tracking.sources import check_rotation
+
+if TYPE_CHECKING:  # heavy: imported where a replay runs
+    from dsteleop.app.replay.core import RunSink, SinkFor
+    from dsteleop.app.rrd.replay import Camera
+    from dsteleop.app.session.reader import Session
+    from dsteleop.app.session.schema import TickRecord
+    from dsteleop.robot.scene import SceneGeometry
 
 log = logging.getLogger(__name__)
 
@@ -205,17 +214,22 @@ Unit = tuple[str, "int | None", tuple[str, ...], "ReplayCommand", "str | None"]
 modes, the command, the folder of Rerun part files (None: no recording))."""
 
 
-def _rerun_sinks(parts: Path, modes: tuple[str, ...], plant_meta: Any, camera: Any) -> Any:
+def _rerun_sinks(
+    parts: Path,
+    modes: tuple[str, ...],
+    plant_meta: dict[str, Any] | None,
+    camera: Camera | None,
+) -> SinkFor:
     """`sink_for(name, mode)`: each run's part file (recording id = the run's name: an
     episode, or a video); the first mode's also holds what the modes share (the true goals,
     the camera over the run's time, the recording's layout)."""
     from dsteleop.app.rrd.replay import write_part
 
-    def sink_for(name: str, mode: Mode) -> Any:
+    def sink_for(name: str, mode: Mode) -> RunSink:
         shared = mode.value == modes[0]
         part = parts / f"{name.replace('/', '~')}-{mode.value}.rrd"
 
-        def sink(records: Any, scene: Any) -> None:
+        def sink(records: Sequence[TickRecord], scene: SceneGeometry | None) -> None:
             write_part(
                 part,
                 name,
@@ -232,7 +246,7 @@ def _rerun_sinks(parts: Path, modes: tuple[str, ...], plant_meta: Any, camera: A
     return sink_for
 
 
-def _camera(session: Any) -> Any:
+def _camera(session: Session) -> Camera | None:
     """The session's camera for a recording: its video and the frames' capture times."""
     from dsteleop.app.replay.video import frame_times
     from dsteleop.app.rrd.replay import Camera
@@ -414,7 +428,7 @@ def _run(cmd: ReplayCommand, out: Path) -> int:
         "divergence": core.divergences(all_traces),
     }
     (out / "metrics.json").write_text(
-        json.dumps(core.jsonable(metrics_json), indent=2, allow_nan=False) + "\n"
+        json.dumps(jsonable(metrics_json), indent=2, allow_nan=False) + "\n"
     )
     if cmd.plots:
         from dsteleop.app.replay.plots import plot_traces

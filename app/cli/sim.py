@@ -24,7 +24,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from dsteleop.app.cli.options import add_config_options, config_from_file, parse_params
 from dsteleop.app.cli.world_options import add_world_arguments, world_overrides
@@ -32,6 +32,10 @@ from dsteleop.app.outpaths import created_dir, output_dir
 from dsteleop.app.tasks.progress import Progress
 from dsteleop.arbitration import ArbitrationConfig, Mode, registered
 from dsteleop.errors import ConfigError, InputError
+
+if TYPE_CHECKING:  # heavy: imported when a command runs
+    from dsteleop.app.study.planar import SimConfig
+    from dsteleop.app.study.sweep import CellConfig, Grid
 
 log = logging.getLogger("dsteleop.sim")
 
@@ -50,16 +54,16 @@ class SimCommand:
         progress: draw the progress bar (None: on a terminal).
     """
 
-    study: Any
+    study: SimConfig
     out: Path
     workers: int
     figures: bool
     progress: bool | None
-    sweep: Any = None
+    sweep: Grid | None = None
     address: str | None = None
     resume: bool = False
     design: str = "grid"
-    cell_configs: Any = None
+    cell_configs: dict[str, CellConfig] | None = None
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -240,7 +244,7 @@ def command(args: argparse.Namespace) -> SimCommand:
 
 def read_cell_configs(
     folder: Path, cells: list[tuple[float, ...]], params: list[str]
-) -> dict[str, Any]:
+) -> dict[str, CellConfig]:
     """Per cell name its `CellConfig` from `folder`/<cell>.json (read as a `--config` file,
     with `--param` on top): every cell must have one, so none falls back to the defaults.
 
@@ -261,7 +265,7 @@ def read_cell_configs(
             f"--cell-configs {folder}: no {missing[0]}.json ({len(missing)} of {len(names)} "
             "cells have no configuration; tune them with scripts/tune_sweep.py)"
         )
-    out: dict[str, Any] = {}
+    out: dict[str, CellConfig] = {}
     for name in names:
         path = folder / f"{name}.json"
         arb, own = study_configuration(path, params, "--cell-configs")

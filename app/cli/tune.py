@@ -43,6 +43,7 @@ from typing import TYPE_CHECKING, Any
 
 from dsteleop.app.cli.options import arbitration_config
 from dsteleop.app.cli.world_options import add_world_arguments, world_overrides
+from dsteleop.app.jsonable import jsonable
 from dsteleop.app.outpaths import created_dir, output_dir
 from dsteleop.errors import ConfigError, InputError
 
@@ -286,7 +287,7 @@ def _run(cmd: TuneCommand, out: Path, t_start: float) -> int:
     summary = campaign.run(
         cmd.plan, out, lambda: RayExecutor(cmd.address, cmd.workers), show, t_start
     )
-    json.dump(campaign.json_ready(campaign.brief(summary)), sys.stdout, separators=(",", ":"))
+    json.dump(jsonable(campaign.brief(summary)), sys.stdout, separators=(",", ":"))
     sys.stdout.write("\n")
     error = campaign.failure(summary)
     if error is not None:

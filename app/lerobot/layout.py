@@ -53,8 +53,8 @@ import pyarrow as pa  # type: ignore[import-untyped]
 import pyarrow.parquet as pq  # type: ignore[import-untyped]
 from numpy.typing import NDArray
 
+from dsteleop.app.jsonable import jsonable
 from dsteleop.app.session.schema import TickRecord, encode
-from dsteleop.app.session.writer import clean
 from dsteleop.arbitration import HandState
 from dsteleop.arbitration.se3 import quat_wxyz_from_matrix
 from dsteleop.errors import InputError
@@ -301,7 +301,7 @@ def frame_columns(
         cols["dsteleop.camera_t_s"] = np.asarray(camera_t_s, dtype=np.float64) - t0
     # As the session writer writes a tick (NaN as null: JSON has none).
     cols[TICK] = [
-        json.dumps(clean(encode(r)), separators=(",", ":"), allow_nan=False) for r in records
+        json.dumps(jsonable(encode(r)), separators=(",", ":"), allow_nan=False) for r in records
     ]
     frame = np.arange(n, dtype=np.int64)
     cols["timestamp"] = (frame / fps).astype(np.float32)

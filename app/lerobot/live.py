@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from dsteleop.app.jsonable import jsonable
 from dsteleop.app.lerobot import check_out_dir
 from dsteleop.app.lerobot.camera import DEFAULT_CODEC, SessionFrames
 from dsteleop.app.lerobot.layout import goal_candidates
@@ -30,7 +31,6 @@ from dsteleop.app.session.episodes import Episode
 from dsteleop.app.session.reader import Session
 from dsteleop.app.session.schema import TickRecord, decode, encode
 from dsteleop.app.session.video import FRAMES, VIDEO, lower_thread_priority
-from dsteleop.app.session.writer import clean
 
 log = logging.getLogger(__name__)
 
@@ -110,7 +110,7 @@ class LiveDataset:
     ) -> None:
         # As the session's file holds them (outputs to 10 significant digits): the dataset
         # then equals an export of the session, and a replay of either gives the same.
-        ticks = tuple(decode(clean(encode(r)), r.dims) for r in ticks)
+        ticks = tuple(decode(jsonable(encode(r)), r.dims) for r in ticks)
         view = Session(
             folder,
             meta,

@@ -28,6 +28,7 @@ import numpy as np
 import pyarrow as pa  # type: ignore[import-untyped]
 
 from dsteleop import __version__
+from dsteleop.app.jsonable import jsonable
 from dsteleop.app.lerobot import layout as L  # noqa: N812  (the layout, named once)
 from dsteleop.app.lerobot.camera import (
     DEFAULT_CODEC,
@@ -38,7 +39,7 @@ from dsteleop.app.lerobot.camera import (
 )
 from dsteleop.app.session.reader import Session
 from dsteleop.app.session.schema import SCHEMA
-from dsteleop.app.session.writer import clean, write_json_atomic
+from dsteleop.app.session.writer import write_json_atomic
 from dsteleop.errors import InputError
 
 
@@ -264,8 +265,8 @@ class DatasetWriter:
                 "dsteleop/utensil": "" if ep is None else ep.utensil,
                 "dsteleop/duration_s": float(ticks[-1] - ticks[0] if ep is None else ep.duration_s),
                 L.T_START: float(ticks[0]),
-                "dsteleop/episode": json.dumps(clean(None if ep is None else ep.to_dict())),
-                "dsteleop/session_meta": json.dumps(clean(view.meta), allow_nan=False),
+                "dsteleop/episode": json.dumps(jsonable(None if ep is None else ep.to_dict())),
+                "dsteleop/session_meta": json.dumps(jsonable(view.meta), allow_nan=False),
             }
         )
         table = L.data_table(cols, feats)

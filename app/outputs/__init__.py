@@ -25,7 +25,7 @@ import importlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 from dsteleop.errors import ConfigError
 
@@ -94,9 +94,15 @@ class OutputContext:
     frames: bool
 
 
+#: An output's checked setting (rerun: its `RerunTarget`, lerobot: its root folder).
+T = TypeVar("T")
+
+
 @dataclass(frozen=True)
-class OutputKind:
-    """An output's plug-in (module docstring).
+class OutputKind(Generic[T]):
+    """An output's plug-in (module docstring), generic over its setting T, so that its
+    parse, open and sessions are checked against each other (the registry holds
+    `OutputKind[Any]`).
 
     Attributes:
         name: its key in `LoopOptions.outputs` and in the command's summary.
@@ -114,25 +120,25 @@ class OutputKind:
 
     name: str
     add_arguments: Callable[[argparse.ArgumentParser], None]
-    parse: Callable[[argparse.Namespace, SourceSpec], Any]
-    open: Callable[[Any, OutputContext], Output | None]
+    parse: Callable[[argparse.Namespace, SourceSpec], T | None]
+    open: Callable[[T, OutputContext], Output | None]
     wants_frames: bool = False
     wants_scene: bool = False
-    sessions: Callable[[Any], Path] | None = None
+    sessions: Callable[[T], Path] | None = None
 
 
-_EXTRA: list[OutputKind] = []
-_BUILTIN: list[OutputKind] = []
+_EXTRA: list[OutputKind[Any]] = []
+_BUILTIN: list[OutputKind[Any]] = []
 
 
-def registered() -> tuple[OutputKind, ...]:
+def registered() -> tuple[OutputKind[Any], ...]:
     """Every output, the built-in ones first (in `BUILTIN`'s order), then those registered."""
     if not _BUILTIN:
         _BUILTIN.extend(importlib.import_module(m).KIND for m in BUILTIN)
     return (*_BUILTIN, *_EXTRA)
 
 
-def kind(name: str) -> OutputKind:
+def kind(name: str) -> OutputKind[Any]:
     """The registered output `name`.
 
     Raises:
@@ -145,7 +151,7 @@ def kind(name: str) -> OutputKind:
     raise ConfigError(f"unknown output {name!r} (outputs: {names})")
 
 
-def register(new: OutputKind) -> OutputKind:
+def register(new: OutputKind[T]) -> OutputKind[T]:
     """Add an output (its name must be new)."""
     if any(k.name == new.name for k in registered()):
         raise ConfigError(f"output {new.name!r}: an output of that name is registered already")
@@ -153,7 +159,7 @@ def register(new: OutputKind) -> OutputKind:
     return new
 
 
-def unregister(old: OutputKind) -> None:
+def unregister(old: OutputKind[Any]) -> None:
     """Remove an output `register` added."""
     _EXTRA.remove(old)
 

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from dsteleop.app.jsonable import finite
 from dsteleop.app.session.schema import BeliefRecord, TickRecord
 from dsteleop.robot.task import EventKind
 
@@ -32,7 +33,9 @@ PLACE_NAMES = ("bin",)
 
 
 def _num(x: float) -> float | None:
-    return None if not np.isfinite(x) else round(float(x), 4)
+    """Finite, to four decimals (`finite`), or None."""
+    v = finite(x)
+    return None if v is None else round(v, 4)
 
 
 def pick_beliefs(

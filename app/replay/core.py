@@ -41,8 +41,6 @@ mode. `divergences` gives Fig. 8's Jensen-Shannon divergences of the hand's and 
 
 from __future__ import annotations
 
-import dataclasses
-import math
 from collections.abc import Callable, Sequence
 from typing import Any, Literal, NamedTuple
 
@@ -50,6 +48,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dsteleop.app.inputs.recorded import RecordedHandInput
+from dsteleop.app.jsonable import finite, jsonable
 from dsteleop.app.loop import LoopConfig, TeleopLoop
 from dsteleop.app.loop.timing import ManualClock
 from dsteleop.app.ports import HandInput, Robot, Task
@@ -209,15 +208,6 @@ def is_censored(trace: Trace) -> bool:
     return trace.outcome is None or trace.outcome.reason == "timeout"
 
 
-def num(x: Any) -> float | None:
-    """A finite float, or None."""
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        return None
-    return v if math.isfinite(v) else None
-
-
 #: Statistics over fewer episodes than this a mode are reported, and flagged as not
 #: meaningful (a chi-squared or t-test on a handful of trials says nothing).
 MIN_EPISODES = 5
@@ -294,7 +284,7 @@ def session_summary(name: str, recorded_s: float, traces: Sequence[Trace]) -> di
     for tr in traces:
         alpha = tr.step.alpha
         mean_alpha = {
-            d: num(np.nanmean(alpha[tr.arbitrated, i])) if tr.arbitrated.any() else None
+            d: finite(np.nanmean(alpha[tr.arbitrated, i])) if tr.arbitrated.any() else None
             for i, d in enumerate(tr.dims)
         }
         row: dict[str, Any] = {}
@@ -386,14 +376,14 @@ def _summary(
         g = _geometric(x)
         out[m.name] = None if g is None else g.mean
         out[f"{m.name}_ci95"] = None if g is None else [g.ci_low, g.ci_high]
-    out[f"{m.name}_arithmetic_mean"] = num(np.mean(x)) if x else None
+    out[f"{m.name}_arithmetic_mean"] = finite(np.mean(x)) if x else None
     if m.name == "time_s":  # which of the times are bounds, not completion times
         cen = sum(bool(r.get("censored", False)) for r in rows)
         out["censored"] = {"count": cen, "share": cen / len(rows) if rows else None}
     if m.variant is not None:
         k = metric_table.variant_key(m)
         v = [r[k] for r in rows if r.get(k) is not None]
-        out[k] = num(np.mean(v)) if v else None
+        out[k] = finite(np.mean(v)) if v else None
     return out
 
 
@@ -474,18 +464,3 @@ def divergences(traces: Sequence[Trace]) -> dict[str, Any]:
 def test_notes(tests: dict[str, Any]) -> list[str]:
     """The notes of the tests that are not meaningful, to say beside the results."""
     return [str(t["note"]) for t in tests.values() if not t.get("meaningful", True)]
-
-
-def jsonable(obj: Any) -> Any:
-    """Dataclasses, numpy scalars and non-finite floats made JSON-ready."""
-    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        return {k: jsonable(v) for k, v in dataclasses.asdict(obj).items()}
-    if isinstance(obj, dict):
-        return {k: jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [jsonable(v) for v in obj]
-    if isinstance(obj, (float, np.floating)):
-        return num(obj)
-    if isinstance(obj, np.integer):
-        return int(obj)
-    return obj

@@ -26,7 +26,6 @@ import datetime
 import hashlib
 import json
 import logging
-import math
 import os
 import queue
 import tempfile
@@ -36,6 +35,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from dsteleop import __version__
+from dsteleop.app.jsonable import jsonable
 from dsteleop.app.session.episodes import Episode
 from dsteleop.app.session.schema import SCHEMA, TickRecord, encode
 from dsteleop.arbitration import OperatorHistory
@@ -56,7 +56,7 @@ def write_json_atomic(path: Path, data: Any) -> None:
     try:
         os.chmod(tmp, 0o644)
         with os.fdopen(fd, "w") as f:
-            json.dump(clean(data), f, indent=2, sort_keys=True, allow_nan=False)
+            json.dump(jsonable(data), f, indent=2, sort_keys=True, allow_nan=False)
             f.write("\n")
             f.flush()
             os.fsync(f.fileno())
@@ -64,20 +64,6 @@ def write_json_atomic(path: Path, data: Any) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
-
-
-def clean(value: Any) -> Any:
-    """JSON-safe: NaN/inf become null (JSON has neither); numpy values become Python ones."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {str(k): clean(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [clean(v) for v in value]
-    tolist = getattr(value, "tolist", None)
-    if tolist is not None:
-        return clean(tolist())
-    return value
 
 
 def new_session_folder(root: Path, mode: str, utensil: str) -> Path:
@@ -111,7 +97,7 @@ class SessionWriter:
             raise InputError(f"{self.folder} already holds a session; choose another folder")
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
-            self.meta = {"schema": SCHEMA, "dsteleop_version": __version__, **clean(meta)}
+            self.meta = {"schema": SCHEMA, "dsteleop_version": __version__, **jsonable(meta)}
             write_json_atomic(self.folder / META, self.meta)
             self._ticks: IO[str] | None = open(self.folder / TICKS, "a", encoding="utf-8")  # noqa: SIM115
         except OSError as exc:
@@ -123,7 +109,7 @@ class SessionWriter:
         """Append one tick record (a JSON object on one line) and flush it."""
         if self._ticks is None:
             raise RuntimeError("session is closed")
-        line = json.dumps(clean(record), separators=(",", ":"), allow_nan=False)
+        line = json.dumps(jsonable(record), separators=(",", ":"), allow_nan=False)
         self._ticks.write(line + "\n")
         self._ticks.flush()
         self.n_ticks += 1
@@ -136,7 +122,7 @@ class SessionWriter:
         if self._ticks is not None:
             self._ticks.flush()
             os.fsync(self._ticks.fileno())
-        episodes = [*self.meta.get("episodes", []), clean(episode)]
+        episodes = [*self.meta.get("episodes", []), jsonable(episode)]
         self.meta = {**self.meta, "episodes": episodes}
         write_json_atomic(self.folder / META, self.meta)
 
@@ -150,7 +136,7 @@ class SessionWriter:
         self._ticks = None
         self.meta = {
             **self.meta,
-            **clean(extra_meta or {}),
+            **jsonable(extra_meta or {}),
             "n_ticks": self.n_ticks,
             "complete": True,
         }

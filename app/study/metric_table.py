@@ -35,6 +35,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from dsteleop.app.jsonable import finite
 from dsteleop.app.session.trace import Trace
 from dsteleop.arbitration import metrics
 from dsteleop.errors import ConfigError
@@ -185,18 +186,9 @@ def _replay_cosines(trace: Trace) -> metrics.CosineDistance:
     return metrics.summarise_cosines(metrics.cosine_distances(replay_products(trace)))
 
 
-def _finite(x: Any) -> float | None:
-    """A finite float, or None."""
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        return None
-    return v if np.isfinite(v) else None
-
-
 def _replay_cosine_sum(trace: Trace) -> float | None:
     cos = _replay_cosines(trace)
-    return _finite(cos.total) if int(cos.n_actions) > 0 else None
+    return finite(cos.total) if int(cos.n_actions) > 0 else None
 
 
 SUCCESS = Metric(
@@ -232,7 +224,7 @@ COSINE_DISTANCE = Metric(
         "LABELLED VARIANT: per trajectory the mean per counted action (the sum divided by the "
         "actions), mean over trajectories; not the paper's definition",
         study=lambda t: t.cosine_mean,
-        replay=lambda tr: _finite(_replay_cosines(tr).mean),
+        replay=lambda tr: finite(_replay_cosines(tr).mean),
     ),
     tune_variant=True,
     about=(
@@ -248,7 +240,7 @@ AGREEMENT = Metric(
     maximise=True,
     scale="linear",
     study=lambda t: t.agreement,
-    replay=lambda tr: _finite(metrics.agreement_of(replay_products(tr)).ratio),
+    replay=lambda tr: finite(metrics.agreement_of(replay_products(tr)).ratio),
 )
 
 _TABLE: dict[str, Metric] = {m.name: m for m in (SUCCESS, TIME, COSINE_DISTANCE, AGREEMENT)}

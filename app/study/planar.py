@@ -56,6 +56,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from dsteleop.app.jsonable import jsonable
 from dsteleop.app.operator.closed_loop import ClosedLoopOperator
 from dsteleop.app.operator.open_loop import OperatorStrategy, OperatorTrajectory, sample_trajectory
 from dsteleop.app.operator.person import Intention, OperatorProfile
@@ -324,9 +325,9 @@ class SimConfig:
             elif f.name in ("arbitration", "world"):
                 v = v.to_dict()
             elif f.name == "strategy":
-                v = _jsonable(dataclasses.asdict(self.operator_strategy))
+                v = jsonable(self.operator_strategy)
             elif f.name == "profile":
-                v = _jsonable(dataclasses.asdict(self.operator_profile))
+                v = jsonable(self.operator_profile)
             elif f.name in ("grasps", "objects"):
                 if v is None:  # the default world's summary stays as it was
                     continue
@@ -656,13 +657,3 @@ def figure_study(cfg: SimConfig) -> SimConfig:
     return dataclasses.replace(
         cfg, operator=FIGURE_OPERATOR, modes=FIGURE_MODES, trajectories=n, objects=None
     )
-
-
-def _jsonable(v: Any) -> Any:
-    if isinstance(v, dict):
-        return {k: _jsonable(x) for k, x in v.items()}
-    if isinstance(v, (tuple, list)):
-        return [_jsonable(x) for x in v]
-    if isinstance(v, np.ndarray):
-        return v.tolist()
-    return v

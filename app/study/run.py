@@ -14,7 +14,7 @@ import multiprocessing as mp
 import os
 import signal
 from collections.abc import Callable, Sequence
-from typing import Any
+from multiprocessing.queues import SimpleQueue
 
 import numpy as np
 
@@ -59,10 +59,11 @@ def keep_freed_memory() -> bool:
     return bool(mallopt(_M_TRIM_THRESHOLD, 1 << 30) == 1 and ok)
 
 
-_QUEUE: Any = None
+#: A worker's queue of progress counts (trajectory-modes done) to the parent.
+_QUEUE: SimpleQueue[int] | None = None
 
 
-def _init_worker(queue: Any) -> None:
+def _init_worker(queue: SimpleQueue[int]) -> None:
     global _QUEUE  # noqa: PLW0603 - one queue per worker process, set once by the pool
     _QUEUE = queue
     # A worker ends by SIGTERM when the pool closes, whatever its parent was handling.
@@ -125,7 +126,7 @@ def simulate_all(
         # again (~0.5 s of numba's start-up per process) while this process does the same.
         compile_kernels()
     ctx = mp.get_context("fork" if fork else "spawn")
-    queue = ctx.SimpleQueue()
+    queue: SimpleQueue[int] = ctx.SimpleQueue()
 
     def progress() -> None:
         while not queue.empty():

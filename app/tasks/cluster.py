@@ -161,7 +161,8 @@ class RayExecutor:
             return
         self._home = tempfile.TemporaryDirectory(prefix="dsteleop-ray-")
         (Path(self._home.name) / "ray_bootstrap_config.yaml").write_text(
-            "# written by dsteleop tune for its local Ray cluster\nprovider:\n  type: local\n"
+            "# written by dsteleop (tune, sim --sweep) for its local Ray cluster\n"
+            "provider:\n  type: local\n"
         )
         before = os.environ.get("HOME")
         # The workers keep the user's cache folder (where the compiled arbitration kernels

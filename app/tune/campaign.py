@@ -22,7 +22,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
-import math
 import sys
 import time
 from collections import defaultdict
@@ -31,6 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
+from dsteleop.app.jsonable import jsonable
 from dsteleop.app.study.planar import OPERATOR_FIELDS
 from dsteleop.app.tasks.executor import Cluster
 from dsteleop.app.tasks.progress import Progress
@@ -246,7 +246,7 @@ def run(
     summary["rounds"] = [r.to_dict(out) for r in rounds]
     summary["edges"] = [e.to_dict() for e in final.edges]
     summary["widen_edges"] = plan.widen_edges
-    (out / "summary.json").write_text(json.dumps(json_ready(summary), indent=2) + "\n")
+    (out / "summary.json").write_text(json.dumps(jsonable(summary), indent=2) + "\n")
     (out / "summary.md").write_text(report.markdown(summary))
     return summary
 
@@ -473,7 +473,7 @@ def _write(
     best_path = out / "best.json"
     if best is not None:
         best_path.write_text(
-            json.dumps(json_ready(report.best_json(settings, best, holdout, out)), indent=2) + "\n"
+            json.dumps(jsonable(report.best_json(settings, best, holdout, out)), indent=2) + "\n"
         )
         files.append("best.json")
     elif best_path.exists():
@@ -538,7 +538,7 @@ def _summary(
 
 
 def brief(summary: dict[str, Any]) -> dict[str, Any]:
-    """The command's JSON line on stdout (`json_ready` it)."""
+    """The command's JSON line on stdout (`jsonable` it)."""
     best = summary["best"]
     h = (summary.get("holdout") or {}).get("study")
     gain = None
@@ -568,16 +568,3 @@ def brief(summary: dict[str, Any]) -> dict[str, Any]:
         "timing": summary["timing"],
         "files": summary["files"],
     }
-
-
-def json_ready(v: Any) -> Any:
-    """JSON-ready: non-finite floats as null, tuples as lists."""
-    if isinstance(v, dict):
-        return {str(k): json_ready(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [json_ready(x) for x in v]
-    if isinstance(v, float):
-        return v if math.isfinite(v) else None
-    if hasattr(v, "item") and callable(v.item):  # numpy scalars
-        return json_ready(v.item())
-    return v

@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
+from dsteleop.app.jsonable import finite
 from dsteleop.app.tasks.executor import Executor, TaskError
 from dsteleop.app.tune.objective import Objective
 from dsteleop.app.tune.space import Dimension, Value, as_values, parse_space
@@ -381,7 +382,7 @@ def best_of(recs: Sequence[TrialRecord], objective: Objective) -> TrialRecord | 
 
 @dataclass
 class _Running:
-    trial: Any  # optuna.Trial
+    trial: optuna.Trial
     params: dict[str, Value]
     handles: list[tuple[str, Any]]
     t0: float
@@ -477,7 +478,7 @@ def run_trials(
         trial.set_user_attr("wall_s", wall)
         trial.set_user_attr("seconds", seconds)
         if metrics:
-            trial.set_user_attr("metrics", _finite(metrics))
+            trial.set_user_attr("metrics", {k: finite(v) for k, v in metrics.items()})
         if error:
             trial.set_user_attr("error", error)
             study.tell(trial, state=TrialState.FAIL)
@@ -517,8 +518,3 @@ def run_trials(
                 if on_trial is not None:
                     on_trial(rec)
     return done
-
-
-def _finite(metrics: Mapping[str, float]) -> dict[str, float | None]:
-    """Metrics for storage (JSON): nan as None."""
-    return {k: (float(v) if math.isfinite(v) else None) for k, v in metrics.items()}

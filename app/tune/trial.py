@@ -277,5 +277,5 @@ def sessions_metrics(runs: Sequence[Mapping[str, Any]], mode: str = "DS") -> dic
     return out
 
 
-def _num(x: Any) -> float:
+def _num(x: float | None) -> float:
     return math.nan if x is None else float(x)

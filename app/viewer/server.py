@@ -1,9 +1,9 @@
 """The browser view: a Viser server fed by the loop's snapshots, a sink with a mailbox back.
 
-The viewer is a sink (STYLE.md item 7). It owns a `viser.ViserServer` and one thread that
-reads its own one-slot `Subscription` of the loop's `Broadcaster`: the loop only ever
-overwrites that slot, so a slow viewer, or a closed or stalled browser tab behind it, skips
-snapshots and never slows the loop. Viser's per-client message buffer then keeps only the
+The viewer is a sink (docs/viewer.md, "How it is built"). It owns a `viser.ViserServer` and
+one thread that reads its own one-slot `Subscription` of the loop's `Broadcaster`: the loop
+only ever overwrites that slot, so a slow viewer, or a closed or stalled browser tab behind
+it, skips snapshots and never slows the loop. Viser's per-client message buffer then keeps only the
 newest update per element, so a slow client coalesces as well. GUI callbacks only post
 requests to `Controls`, which the loop takes once per tick; the viewer never touches the
 loop's state and never imports PyBullet.
@@ -47,9 +47,12 @@ import time
 from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
+
+if TYPE_CHECKING:
+    import viser
 
 from dsteleop.app.loop.broadcast import Broadcaster, Subscription
 from dsteleop.app.loop.controls import Controls
@@ -283,8 +286,8 @@ class Viewer:
         self._last_hand: HandState | None = None
         self._dims: tuple[str, ...] = ()
         self._history: AlphaHistory | None = None
-        self._plot: Any = None
-        self._image: Any = None
+        self._plot: viser.GuiUplotHandle | None = None
+        self._image: viser.GuiImageHandle | None = None
         self._camera_seq: int | None = None
         self._t_plot = -math.inf
         self._recent: tuple[float | None, float | None] = (None, None)
@@ -397,18 +400,18 @@ class Viewer:
         self._add_stop()
         names = mode_names()
         mode = gui.add_dropdown("Mode", names, initial_value=names[0], hint=MODE_HINT)
-        self._mode: Any = mode
+        self._mode = mode
         self._mode_followed = names[0]  # the loop's mode the dropdown last followed
 
         @mode.on_update
-        def _(event: Any) -> None:
+        def _(event: viser.GuiEvent[viser.GuiDropdownHandle[str]]) -> None:
             if event.client is not None:  # a person chose it (not our own sync)
                 self._controls.set_mode(str(mode.value))
 
         buttons = gui.add_button_group("Hand / task", ("Calibrate", "Reset task"))
 
         @buttons.on_click
-        def _(event: Any) -> None:
+        def _(event: viser.GuiEvent[viser.GuiButtonGroupHandle]) -> None:
             if event.target.value == "Calibrate":
                 self._controls.calibrate()
             else:
@@ -425,14 +428,14 @@ class Viewer:
         )
 
         @utensil.on_update
-        def _(event: Any) -> None:
+        def _(event: viser.GuiEvent[viser.GuiDropdownHandle[str]]) -> None:
             if event.client is not None:
                 self._controls.choose_utensil(str(utensil.value))
 
         record = gui.add_button_group("Recording", ("Start", "Stop"))
 
         @record.on_click
-        def _(event: Any) -> None:
+        def _(event: viser.GuiEvent[viser.GuiButtonGroupHandle]) -> None:
             self._controls.set_recording(event.target.value == "Start")
 
         with gui.add_folder("Parameters (live, recorded)", expand_by_default=True):
@@ -451,7 +454,7 @@ class Viewer:
         resume = gui.add_button(
             "Resume", color="green", icon=viser.Icon.PLAYER_PLAY, disabled=True, hint=RESUME_KEY
         )
-        self._resume: Any = resume
+        self._resume = resume
         self._stop_note = gui.add_html(stop_html(False))
         self._shown_stopped = False
         stop_key = gui.add_command(
@@ -462,19 +465,19 @@ class Viewer:
         )
 
         @stop.on_click
-        def _(event: Any) -> None:
+        def _(event: viser.GuiEvent[viser.GuiButtonHandle]) -> None:
             self._controls.stop_robot()
 
         @stop_key.on_trigger
-        def _(event: Any) -> None:
+        def _(event: viser.CommandEvent) -> None:
             self._controls.stop_robot()
 
         @resume.on_click
-        def _(event: Any) -> None:
+        def _(event: viser.GuiEvent[viser.GuiButtonHandle]) -> None:
             self._controls.resume_robot()
 
         @resume_key.on_trigger
-        def _(event: Any) -> None:
+        def _(event: viser.CommandEvent) -> None:
             self._controls.resume_robot()
 
     def _show_stopped(self, stopped: bool) -> None:
@@ -497,7 +500,7 @@ class Viewer:
         self._accepted[s.name] = s.initial
 
         @handle.on_update
-        def _(event: Any) -> None:
+        def _(event: viser.GuiEvent[viser.GuiSliderHandle[float]]) -> None:
             if event.client is not None:
                 self.offer_param(s, handle.value)
 
@@ -645,7 +648,9 @@ class Viewer:
             return
         self._mode_followed = mode
         if self._mode.value != mode:
-            self._mode.value = mode
+            # viser types a dropdown's value read-only (its props class declares the field);
+            # the handle's setter is what runs
+            self._mode.value = mode  # type: ignore[misc]
 
     def _update_camera(self, snap: TickRecord) -> None:
         seq = None if snap.hand is None else snap.hand.seq

@@ -26,7 +26,7 @@ BUILTIN: tuple[str, ...] = (
     "ds", "standard", "manual", "autonomous", "scalar", "dsc", "conf_scalar",
 )  # fmt: skip
 
-_SPECS: dict[str, ModeSpec] = {}
+_SPECS: dict[str, ModeSpec[Any, Any]] = {}
 _MODES: dict[str, Mode] = {}
 
 
@@ -71,7 +71,7 @@ class Mode(str, metaclass=_Registered):
         return self.spec.attribute
 
     @property
-    def spec(self) -> ModeSpec:
+    def spec(self) -> ModeSpec[Any, Any]:
         """Its plug-in."""
         try:
             return _SPECS[self]  # a Mode hashes and compares as its name
@@ -102,7 +102,7 @@ def _by_name(name: str) -> Mode:
     return Mode.parse(name)
 
 
-def register(spec: ModeSpec) -> Mode:
+def register(spec: ModeSpec[Any, Any]) -> Mode:
     """Add a mode; its name and attribute must be new (a ConfigError otherwise)."""
     if (
         not spec.name

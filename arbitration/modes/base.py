@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
+from typing import TYPE_CHECKING, Any, Generic, NamedTuple, Protocol, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -83,12 +83,20 @@ class ModeState(Protocol):
     def select(self, keep: NDArray[np.bool_]) -> ModeState: ...
 
 
-AlphaRule = Callable[[Any, Quantities, Rows, Any], Any]
+#: A mode's own parameters (a frozen dataclass, or None when it has none).
+P = TypeVar("P")
+#: A mode's own filter state (None when it has none).
+S = TypeVar("S", bound="ModeState | None")
+
+#: An alpha rule over parameters P and state S: `alpha(params, q, rows, state) -> state`.
+AlphaRule = Callable[[P, Quantities, Rows, S], S]
 
 
 @dataclass(frozen=True)
-class ModeSpec:
-    """One mode plug-in (module docstring).
+class ModeSpec(Generic[P, S]):
+    """One mode plug-in (module docstring), generic over its parameters P and its state S,
+    so that a plug-in's rule, parameter class and initial state are checked against each
+    other (a registry of several modes holds `ModeSpec[Any, Any]`).
 
     Attributes:
         name: its written name.
@@ -109,11 +117,11 @@ class ModeSpec:
 
     name: str
     attribute: str
-    alpha: AlphaRule
+    alpha: AlphaRule[P, S]
     summary: str
-    params: type | None = None
+    params: type[P] | None = None
     space: tuple[str, ...] = ()
-    initial_state: Callable[[ArbitrationConfig, int, int], Any] | None = None
+    initial_state: Callable[[ArbitrationConfig, int, int], S] | None = None
     reads_allocation: bool = True
     reads_confidence: bool = False
     shorthands: tuple[tuple[str, tuple[str, ...]], ...] = ()
