@@ -67,6 +67,13 @@ that sag: 3-8 mm short at K_r = 2 /s (docs/robot.md, `scripts/steady_state.py`);
 0.3 mm. An integral term would also remove the offset, but winds up against contact.
 
 Quaternions cross this boundary as rotation matrices; PyBullet's xyzw stays inside.
+
+Why one module: the control tick, the grasp rules above (soft pads, the stall latch, the
+helper constraint) and the gravity compensation all act on one PyBullet body each tick,
+through the same joint indices, finger tables and contact reads that `BulletArm` builds from
+a description; split apart, each piece would reach into the others' state. Over a quarter of
+the lines are these explanations; the arm's configuration (`RobotConfig`, `Workspace`) could
+move out (~150 lines) and is kept beside the body it configures.
 """
 
 from __future__ import annotations
