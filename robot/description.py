@@ -48,6 +48,13 @@ DEFAULT_ROBOT = "iiwa"
 #: The human fingers a robot finger may follow (tracking.landmarks.FINGER_NAMES).
 HUMAN_FINGERS = ("thumb", "index", "middle", "ring", "little")
 PYBULLET_DATA = "pybullet_data:"
+#: Installed data packages a URDF reference may name as `PACKAGE:PATH` (PATH inside the
+#: package's data folder), besides `pybullet_data:`: the distribution that ships it and its
+#: data folder inside the installed distribution (cmeel's layout: `cmeel.prefix/share/NAME`).
+#: The `robots` extra installs them (pyproject.toml); nothing is downloaded at run time.
+DATA_PACKAGES: dict[str, str] = {
+    "example-robot-data": "cmeel.prefix/share/example-robot-data",
+}
 #: Where the task's grasp goal puts a grasp frame by default: 12 mm above the grip's top end
 #: (`grip.depth_m`, negative: above), with the grasp frame at the palm origin: the iiwa's
 #: four-finger hand, whose fingers wrap the grip from above.
@@ -293,12 +300,20 @@ class RobotDescription:
         return self.palm_link
 
     def resolve(self, ref: str) -> Path:
-        """The file a URDF reference names (`pybullet_data:PATH`, or a path relative to the
-        description file)."""
+        """The file a URDF reference names (`pybullet_data:PATH`, `example-robot-data:PATH`
+        (`DATA_PACKAGES`), or a path relative to the description file).
+
+        Raises:
+            InputError: the reference names a data package that is not installed (one line
+                naming the `pip install` that brings it).
+        """
         if ref.startswith(PYBULLET_DATA):
             import pybullet_data
 
             return Path(pybullet_data.getDataPath()) / ref[len(PYBULLET_DATA) :]
+        package, sep, rest = ref.partition(":")
+        if sep and package in DATA_PACKAGES:
+            return data_package_dir(package, f"robot description {self.path}: {ref!r}") / rest
         p = Path(ref)
         return p if p.is_absolute() else (self.path.parent / p).resolve()
 
@@ -311,6 +326,30 @@ class RobotDescription:
         """What a session records: the name and the file (and its text, so a replay
         elsewhere can rebuild it)."""
         return {"name": self.name, "path": str(self.path), "text": self.text}
+
+
+def data_package_dir(package: str, where: str) -> Path:
+    """The installed data folder of `package` (a key of `DATA_PACKAGES`).
+
+    Raises:
+        InputError: the package is not installed, or installed without its data folder.
+    """
+    from importlib import metadata
+
+    try:
+        dist = metadata.distribution(package)
+    except metadata.PackageNotFoundError:
+        raise InputError(
+            f"{where}: the package {package} is not installed "
+            f"(pip install 'dsteleop[robots]', or pip install {package})"
+        ) from None
+    d = Path(str(dist.locate_file(DATA_PACKAGES[package])))
+    if not d.is_dir():
+        raise InputError(
+            f"{where}: the installed {package} {dist.version} has no {DATA_PACKAGES[package]} "
+            f"(reinstall it: pip install --force-reinstall {package})"
+        )
+    return d
 
 
 def shipped_robots() -> tuple[str, ...]:

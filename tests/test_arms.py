@@ -1,0 +1,106 @@
+"""The arms beyond the iiwa and the Panda (docs/robots.md): each shipped description loads from
+the package that ships its URDF, a missing package is one line naming the install, and each
+arm that can reach the task grasps a utensil on its own (the goal-seeking run, noise-free)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from dsteleop.errors import InputError
+from dsteleop.robot.description import DATA_PACKAGES, data_package_dir, load_description
+
+REPO = Path(__file__).resolve().parents[1]
+
+#: Hide example-robot-data from importlib.metadata, as when the `robots` extra is not installed.
+_HIDE = """
+import sys
+from importlib import metadata
+_real = metadata.distribution
+def _distribution(name):
+    if name == "example-robot-data":
+        raise metadata.PackageNotFoundError(name)
+    return _real(name)
+metadata.distribution = _distribution
+from dsteleop.app.cli.main import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_the_ur5_is_read_as_shipped_with_the_hand_on_its_flange() -> None:
+    """ur5_robot.urdf as example-robot-data ships it: <transmission> blocks name every arm
+    joint, and they are not joints; the project's hand is mounted on UR's tool flange."""
+    ur5 = load_description("ur5")
+    assert ur5.urdf.startswith("example-robot-data:")
+    share = data_package_dir("example-robot-data", "test")
+    assert ur5.resolve(ur5.urdf) == share / "robots/ur_description/urdf/ur5_robot.urdf"
+    assert "<transmission" in ur5.resolve(ur5.urdf).read_text()
+    assert len(ur5.arm_joints) == 6 and ur5.mount is not None
+    assert (
+        ur5.mount.parent_link == "tool0"
+        and ur5.finger_names == load_description("iiwa").finger_names
+    )
+
+
+def test_the_xarm_gripper_is_one_drive_joint_and_its_five_mimics() -> None:
+    """The xArm Gripper's linkage: the description lists the drive joint only; the URDF's
+    five <mimic> joints follow it (multiplier 1), the right side's links in their own group."""
+    xarm = load_description("xarm6")
+    assert [j.name for j in xarm.finger_joints] == ["drive_joint"]
+    mimics = {m.name: (m.master, m.multiplier, m.offset) for m in xarm.mimic_joints}
+    assert mimics == {
+        n: ("drive_joint", 1.0, 0.0)
+        for n in (
+            "left_finger_joint",
+            "left_inner_knuckle_joint",
+            "right_outer_knuckle_joint",
+            "right_finger_joint",
+            "right_inner_knuckle_joint",
+        )
+    }
+    assert dict(xarm.link_groups) == dict.fromkeys(
+        ("right_outer_knuckle", "right_finger", "right_inner_knuckle"), "right"
+    )
+
+
+def test_a_robot_whose_package_is_missing_names_the_install() -> None:
+    """Without example-robot-data, `--robot ur5` is one line and exit 2 naming the pip install
+    (nothing is downloaded); the library call raises the same InputError."""
+    r = subprocess.run(
+        [sys.executable, "-c", _HIDE, "run", "--source", "demo", "--robot", "ur5"],
+        cwd=REPO, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert r.returncode == 2, r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
+    assert "example-robot-data is not installed" in lines[0]
+    assert "pip install 'dsteleop[robots]'" in lines[0] and "ur5.toml" in lines[0]
+
+
+def test_a_data_package_without_its_data_folder_is_one_line(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setitem(DATA_PACKAGES, "example-robot-data", "cmeel.prefix/share/nowhere")
+    with pytest.raises(InputError, match=r"has no cmeel.prefix/share/nowhere") as err:
+        load_description("ur5")
+    assert "\n" not in str(err.value)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("robot", ["ur5"])
+def test_each_arm_that_reaches_the_task_grasps_and_places_every_utensil(robot: str) -> None:
+    """The goal-seeking run (noise-free goals): the grip closes on each utensil (the task's
+    grasp: two contact groups hold it) and the utensil ends in the bin."""
+    from dsteleop.robot.env import EnvConfig, KitchenEnv
+    from dsteleop.robot.scripted import noise_free, run_autonomous
+    from dsteleop.robot.task import EventKind
+
+    with KitchenEnv(noise_free(EnvConfig(description=load_description(robot)))) as env:
+        for utensil in ("spoon", "spatula", "ladle"):
+            result = run_autonomous(env, utensil, 0)
+            kinds = [e.kind for e in result.events]
+            assert EventKind.GRASP in kinds, (robot, utensil, result.outcome)
+            assert result.outcome.success, (robot, utensil, result.outcome)
