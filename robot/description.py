@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from dsteleop.errors import InputError
+from dsteleop.robot.placement import Placement
 from dsteleop.robot.urdf import UrdfModel, no_joint, package_search_path, resolve_meshes
 
 if sys.version_info >= (3, 11):
@@ -80,7 +81,7 @@ class Range:
 
     def __str__(self) -> str:
         def num(v: float) -> str:
-            return {TAU: "2pi", -TAU: "-2pi"}.get(v, f"{v:g}")
+            return {TAU: "2pi", -TAU: "-2pi", math.pi: "pi", -math.pi: "-pi"}.get(v, f"{v:g}")
 
         lo, hi = num(self.lo), num(self.hi)
         return f"{'(' if self.lo_open else '['}{lo}, {hi}{')' if self.hi_open else ']'}"
@@ -115,6 +116,9 @@ RANGES: dict[str, Range] = {
     "limits.max_speed_m_s": Range(0.0, 2.0, lo_open=True),
     "limits.max_rate_rad_s": Range(0.0, TAU, lo_open=True),
     "limits.max_finger_rate_per_s": Range(0.0, 30.0, lo_open=True),
+    # the task's scene in the base frame (`robot.placement`): within a metre, half a turn
+    "task.xyz_m": Range(-1.0, 1.0),
+    "task.yaw_rad": Range(-math.pi, math.pi),
 }
 
 
@@ -247,6 +251,9 @@ class RobotDescription:
             `link_groups` names its link.
         finger_limits: (joint, lower, upper) of every finger joint with URDF limits, filled
             in at loading.
+        task_xyz_m: `[task] xyz_m`: the task's scene origin in the base frame [m]
+            (`robot.placement`), or None: no `[task]` table (the placement is computed).
+        task_yaw_rad: `[task] yaw_rad`: the scene's turn about the base z axis [rad].
     """
 
     name: str
@@ -280,6 +287,16 @@ class RobotDescription:
     link_groups: tuple[tuple[str, str], ...] = ()
     mimic_joints: tuple[MimicJoint, ...] = ()
     finger_limits: tuple[tuple[str, float, float], ...] = ()
+    task_xyz_m: tuple[float, float, float] | None = None
+    task_yaw_rad: float = 0.0
+
+    @property
+    def task_placement(self) -> Placement | None:
+        """Where the description stands the task's scene (its `[task]` table,
+        `robot.placement`), or None: it says nothing (`robot.reach.task_placement` decides)."""
+        if self.task_xyz_m is None:
+            return None
+        return Placement(self.task_xyz_m, self.task_yaw_rad, "description")
 
     @property
     def finger_names(self) -> tuple[str, ...]:
@@ -584,6 +601,16 @@ def _parse(data: Any, path: Path) -> RobotDescription:
         package_path=_package_path(f),
         link_groups=link_groups,
     )
+    if f.has("task"):
+        t = f.table("task")
+        known = {"xyz_m", "yaw_rad"}
+        if set(t.d) - known:
+            raise t.fail(sorted(set(t.d) - known)[0], "is not a field of [task] (xyz_m, yaw_rad)")
+        desc = dataclasses.replace(
+            desc,
+            task_xyz_m=t.vec3("xyz_m", (0.0, 0.0, 0.0)),
+            task_yaw_rad=t.num("yaw_rad") if t.has("yaw_rad") else 0.0,
+        )
     if not all(a <= b <= c for a, b, c in zip(lo, desc.home_position_m, hi, strict=True)):
         raise home.fail("position_m", "must lie inside the workspace box")
     return desc
