@@ -90,7 +90,7 @@ def test_a_data_package_without_its_data_folder_is_one_line(
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("robot", ["ur5"])
+@pytest.mark.parametrize("robot", ["ur5", "xarm6"])
 def test_each_arm_that_reaches_the_task_grasps_and_places_every_utensil(robot: str) -> None:
     """The goal-seeking run (noise-free goals): the grip closes on each utensil (the task's
     grasp: two contact groups hold it) and the utensil ends in the bin."""
@@ -104,3 +104,52 @@ def test_each_arm_that_reaches_the_task_grasps_and_places_every_utensil(robot: s
             kinds = [e.kind for e in result.events]
             assert EventKind.GRASP in kinds, (robot, utensil, result.outcome)
             assert result.outcome.success, (robot, utensil, result.outcome)
+
+
+@pytest.mark.slow
+def test_the_xarm_gripper_closes_on_the_grip_with_its_linkage_following() -> None:
+    """The goal-seeking run to the spoon's grasp: when the task sees the grasp, the drive joint
+    stands where the pads meet the 24 mm grip (0.65 rad by the URDF's geometry; 0 is open, 0.85
+    the pads together), not closed through it, and every mimic joint of the linkage is at the
+    drive's angle (multiplier 1), so both fingers' links touch the spoon."""
+    from dsteleop.robot.env import EnvConfig, KitchenEnv
+    from dsteleop.robot.scripted import goal_seeking_step, noise_free
+    from dsteleop.robot.task import EventKind
+
+    desc = load_description("xarm6")
+    with KitchenEnv(noise_free(EnvConfig(description=desc))) as env:
+        state = env.reset("spoon")
+        X, task = state.palm, env.task
+        for _ in range(round(10.0 / env.dt_s)):
+            X_next = goal_seeking_step(X, task.goal, env.dt_s)
+            env.set_target(X_next.position, X_next.rotation, X_next.openness)
+            state = env.step()
+            X = state.palm
+            if any(e.kind == EventKind.GRASP for e in task.events):
+                break
+        else:
+            pytest.fail("no grasp within 10 s")
+        for _ in range(15):  # half a second held
+            env.set_target(X.position, X.rotation, X.openness)
+            state = env.step()
+        q = state.joint_positions_rad
+        assert 0.55 < q["drive_joint"] < 0.75, q["drive_joint"]
+        for m in desc.mimic_joints:
+            assert abs(q[m.name] - q["drive_joint"]) < 0.05, (m.name, q[m.name], q["drive_joint"])
+        spoon = env.world.utensils["spoon"]
+        touching = {c.robot_link for c in state.contacts if c.other_body == spoon}
+        assert {"left_finger", "right_finger"} <= touching, touching
+
+
+def test_the_so101_is_refused_for_the_kitchen_task() -> None:
+    """The SO-101 loads (its URDF read as shipped, the jaw against the fixed jaw's group), but
+    the kitchen's poses are out of its reach wherever the scene is moved: one line naming the
+    first pose and the fix."""
+    from dsteleop.robot.reach import require_reachable
+
+    so101 = load_description("so101")
+    assert so101.arm_joints[0] == "shoulder_pan" and len(so101.arm_joints) == 5
+    assert dict(so101.link_groups) == {"gripper_link": "fixed"}
+    with pytest.raises(InputError, match="is not reachable") as err:
+        require_reachable(so101)
+    assert "\n" not in str(err.value) and "so101.toml" in str(err.value)
