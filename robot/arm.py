@@ -653,11 +653,12 @@ class BulletArm:
             or res.error_rad > c.unreachable_tol_rad
             or self._stalled
         )
-        if self._unreachable and not self._stall_said:
-            self._stall_said = True  # once per reset: the first time, with where
+        if self._stalled and not self._stall_said:
+            self._stall_said = True  # once per reset: the first stall, with where
             log.warning(
-                "palm target (%.3f, %.3f, %.3f) m out of reach: the arm misses it by %.1f mm "
-                "/ %.1f deg (check the robot's task placement: dsteleop robot check)",
+                "the palm stalls short of its target (%.3f, %.3f, %.3f) m: out of reach, the "
+                "arm misses it by %.1f mm / %.1f deg a tick (dsteleop robot check tells "
+                "whether the task is in reach)",
                 *p_m, 1e3 * res.error_m, math.degrees(res.error_rad),
             )  # fmt: skip
         return res.q_rad

@@ -395,13 +395,14 @@ def description_path(name_or_file: str, given_by: str = "--robot") -> Path:
     )
 
 
-def load_description(name_or_file: str) -> RobotDescription:
-    """Read and validate a robot description (module docstring).
+def load_description(name_or_file: str, given_by: str = "--robot") -> RobotDescription:
+    """Read and validate a robot description (module docstring); `given_by` names where
+    the name came from in the one-line errors.
 
     Raises:
         InputError: the file is missing or malformed, or a field is wrong (one line).
     """
-    path = description_path(name_or_file)
+    path = description_path(name_or_file, given_by)
     try:
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as exc:

@@ -233,13 +233,18 @@ def problems(desc: RobotDescription, placement: Placement, reaches: list[PoseRea
     return out
 
 
-def require_reachable(desc: RobotDescription, config: RobotConfig | None = None) -> Placement:
-    """The task's placement for `desc`, when every task pose is reachable there.
+def require_reachable(
+    desc: RobotDescription,
+    config: RobotConfig | None = None,
+    placement: Placement | None = None,
+) -> Placement:
+    """The task's placement for `desc` (or `placement`: a recorded one), when every task
+    pose is reachable there: what `run`, `serve` and `replay` check before anything runs.
 
     Raises:
         InputError: the first unreachable pose, its error and the fix (one line).
     """
-    placement = task_placement(desc, config)
+    placement = placement or task_placement(desc, config)
     found = problems(desc, placement, reach_all(arm_chain(desc), desc, placement, config))
     if found:
         raise InputError(f"robot description {desc.path}: {found[0]}")

@@ -402,9 +402,15 @@ def check_robot(robot: str) -> RobotSpec:
     """`--robot NAME|FILE` names a valid robot description (read and checked against its
     URDF now, before anything runs or records); `--robot zenoh:CONFIG` a valid link
     configuration file and its robot's description: the robot, read once
-    (`RobotSpec.parse`, which raises the one-line errors).
+    (`RobotSpec.parse`, which raises the one-line errors). Its arm must reach every pose of
+    the task where the scene stands for it (`robot.reach.require_reachable`: else one line
+    naming the pose, the error and the fix).
     """
-    return RobotSpec.parse(robot)
+    from dsteleop.robot.reach import require_reachable
+
+    spec = RobotSpec.parse(robot)
+    require_reachable(spec.description)
+    return spec
 
 
 def check_loop_bounds(
