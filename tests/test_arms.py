@@ -153,3 +153,19 @@ def test_the_so101_is_refused_for_the_kitchen_task() -> None:
     with pytest.raises(InputError, match="is not reachable") as err:
         require_reachable(so101)
     assert "\n" not in str(err.value) and "so101.toml" in str(err.value)
+
+
+def test_run_refuses_the_so101_in_one_line_exit_2(tmp_path: Path) -> None:
+    """`dsteleop run --robot so101` refuses before anything runs or records: the task is out
+    of the arm's reach (docs/robots.md)."""
+    record = tmp_path / "session"
+    r = subprocess.run(
+        [sys.executable, "-m", "dsteleop.app.cli.main", "run", "--source", "demo",
+         "--robot", "so101", "--record", str(record)],
+        cwd=REPO, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert r.returncode == 2, r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
+    assert "so101.toml" in lines[0] and "is not reachable" in lines[0]
+    assert not record.exists()
