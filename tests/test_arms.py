@@ -169,3 +169,45 @@ def test_run_refuses_the_so101_in_one_line_exit_2(tmp_path: Path) -> None:
     assert len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
     assert "so101.toml" in lines[0] and "is not reachable" in lines[0]
     assert not record.exists()
+
+
+@pytest.mark.parametrize(
+    ("robot", "links"),
+    [("ur5", ("upper_arm_link", "forearm_link", "palm")), ("xarm6", ("link3", "right_finger"))],
+)
+def test_the_page_draws_each_arm_from_its_meshes(
+    robot: str, links: tuple[str, ...], caplog: pytest.LogCaptureFixture
+) -> None:
+    """`serve --robot ur5|xarm6`'s view: a real Viser server follows a live loop and draws the
+    arm from its URDF's meshes (the UR5's visual meshes are COLLADA .dae files, read through
+    pycollada, which the `robots` extra installs), with no error."""
+    import time
+
+    from dsteleop.app.compose import LoopOptions, build
+    from dsteleop.app.loop.timing import ManualClock
+    from dsteleop.app.viewer.server import Viewer, ViewerConfig
+    from tests.deadlines import wait_for
+
+    built = build(LoopOptions.of("demo", robot=robot), realtime=False, export_scene=True)
+    loop = built.loop
+    scene = loop.task.scene()
+    assert scene is not None
+    dae = [v for v in scene.visuals if str(v.mesh_path).endswith(".dae")]
+    assert bool(dae) == (robot == "ur5")
+    viewer = Viewer(loop.broadcaster, loop.controls, scene, ViewerConfig(port=0))
+    try:
+        viewer.start()
+        clock = loop.clock
+        assert isinstance(clock, ManualClock)
+        for _ in range(30):
+            loop.tick(clock.now())
+            clock.advance(loop.config.dt_s)
+            time.sleep(0.005)
+        wait_for(lambda: viewer.stats.scene_updates >= 2)
+        assert viewer.stats.errors == 0
+        assert {f"robot/{name}" for name in links} <= set(viewer.scene.frames)
+        unread = [r.getMessage() for r in caplog.records if "cannot be read" in r.getMessage()]
+        assert not unread, unread[:2]  # every mesh drawn
+    finally:
+        viewer.close()
+        built.close()

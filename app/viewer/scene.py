@@ -323,7 +323,14 @@ class SceneView:
             return
         import trimesh  # a declared dependency (pyproject.toml); loaded only for meshes
 
-        mesh: Any = trimesh.load(str(path), force="mesh", process=False)
+        try:
+            mesh: Any = trimesh.load(str(path), force="mesh", process=False)
+        except (ImportError, ValueError, OSError) as exc:
+            # e.g. a COLLADA (.dae) mesh without pycollada (the `robots` extra installs it)
+            log.warning(
+                "viewer: mesh %s cannot be read (%s); %s drawn without it", path, exc, v.frame
+            )
+            return
         vertices = np.asarray(mesh.vertices, dtype=np.float32) * np.asarray(
             v.mesh_scale, dtype=np.float32
         )
