@@ -261,7 +261,7 @@ def test_robot_check_passes_the_panda_and_reports_every_check() -> None:
         "home",
     ]
     assert all(x["reachable"] and x["error_mm"] < 1.0 for x in report["reach"])
-    assert all(s["ok"] and s["seek_mm"] <= 2.0 for s in report["steady_state"])
+    assert all(s["ok"] and s["command_mm"] <= 2.0 for s in report["steady_state"])
     assert [g["utensil"] for g in report["grasp"]] == list(UTENSIL_NAMES)
     assert all(g["ok"] and g["lift_mm"] >= 30 and g["grip_force_n"] > 0 for g in report["grasp"])
     derived = report["derived"]
