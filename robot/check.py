@@ -314,12 +314,8 @@ def measure_steady(
                         seen.append(float(np.linalg.norm(X.position - p_goal)))
                         contact = contact or bool(state.contacts)
                 errors[how] = float(np.mean(seen))
-        cfg = config or RobotConfig()
-        gc = (
-            desc.gravity_compensation
-            if cfg.gravity_compensation is None
-            else bool(cfg.gravity_compensation)
-        )
+        forced = (config or RobotConfig()).gravity_compensation
+        gc = desc.gravity_compensation if forced is None else bool(forced)
         out.append(Steady(name, errors["command"], errors["seek"], contact, True, gc))
     return out
 
