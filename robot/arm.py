@@ -59,8 +59,9 @@ removed as soon as the thumb or all the other fingers are commanded open; its st
 alone.
 
 Steady state: before each physics step every robot link is held up by its own weight
-(`RobotConfig.gravity_compensation`: m g upwards at its centre of mass), as a real arm's
-controller feeds its gravity torques forward. Without it the position motors (10 solver
+(gravity compensation, the description's `[arm] gravity_compensation`, on unless it says
+false, or `RobotConfig.gravity_compensation`: m g upwards at its centre of mass), as a real
+arm's controller feeds its gravity torques forward. Without it the position motors (10 solver
 iterations) leave the arm 0.1-1.3 mrad short of its target under gravity, and a goal-seeking
 policy that steps from the achieved palm (X_next = X + K_r e dt) stops where its step equals
 that sag: 3-8 mm short at K_r = 2 /s (docs/robot.md, `scripts/steady_state.py`); with it,
@@ -173,10 +174,9 @@ class RobotConfig:
         control_dt_s: simulated time of one control tick [s] (the loop's period).
         gravity_compensation: hold every robot link up against gravity (its weight at its
             centre of mass, each physics step), as a real arm's controller compensates its
-            own weight (module docstring: steady state). On by default: without it the
-            goal-seeking policy stops 3-8 mm short of a still goal (the iiwa 4.9 mm, the
-            Panda 7.7 mm at the worst of `scripts/steady_state.py`'s goals); with it within
-            2 mm on every shipped robot (`tests/test_robots.py`; docs/robot.md).
+            own weight (module docstring: steady state); None (the default): as the robot's
+            description says (`[arm] gravity_compensation`, on unless it says false: the
+            iiwa and the Panda say false, docs/robots.md).
         unreachable_stall_s: a target the IK keeps missing by more than a quarter of what
             each tick asks of it (and by more than `stall_min_m` / `stall_min_rad`) for this
             long is reported unreachable too [s]: the loop steps the palm a little towards
@@ -206,7 +206,7 @@ class RobotConfig:
     pad_stiffness_n_per_m: float = 1.0e4
     pad_damping_n_s_per_m: float = 30.0
     control_dt_s: float = CONTROL_DT_S
-    gravity_compensation: bool = True
+    gravity_compensation: bool | None = None
     unreachable_stall_s: float = 0.5
     stall_min_m: float = 5e-4
     stall_min_rad: float = 5e-3
@@ -448,7 +448,8 @@ class BulletArm:
         #: gravity compensation: each moving link and the force that holds it up [N]
         self._gc_links: list[int] = []
         self._gc_forces: list[tuple[float, float, float]] = []
-        if config.gravity_compensation:
+        gc = config.gravity_compensation
+        if desc.gravity_compensation if gc is None else gc:
             params = pb.getPhysicsEngineParameters(physicsClientId=client)
             gx, gy, gz = (float(params[f"gravityAcceleration{a}"]) for a in "XYZ")
             for li in sorted(set(loaded.links.values()) - {-1}):

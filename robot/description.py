@@ -257,6 +257,8 @@ class RobotDescription:
         task_xyz_m: `[task] xyz_m`: the task's scene origin in the base frame [m]
             (`robot.placement`), or None: no `[task]` table (the placement is computed).
         task_yaw_rad: `[task] yaw_rad`: the scene's turn about the base z axis [rad].
+        gravity_compensation: `[arm] gravity_compensation`: the arm holds its own weight
+            (`robot.arm`, steady state; default true).
     """
 
     name: str
@@ -292,6 +294,7 @@ class RobotDescription:
     finger_limits: tuple[tuple[str, float, float], ...] = ()
     task_xyz_m: tuple[float, float, float] | None = None
     task_yaw_rad: float = 0.0
+    gravity_compensation: bool = True
 
     @property
     def task_placement(self) -> Placement | None:
@@ -605,6 +608,11 @@ def _parse(data: Any, path: Path) -> RobotDescription:
         package_path=_package_path(f),
         link_groups=link_groups,
     )
+    if arm.has("gravity_compensation"):
+        gc = arm.get("gravity_compensation")
+        if not isinstance(gc, bool):
+            raise arm.fail("gravity_compensation", f"must be true or false, got {gc!r}")
+        desc = dataclasses.replace(desc, gravity_compensation=gc)
     if f.has("task"):
         t = f.table("task")
         known = {"xyz_m", "yaw_rad"}
