@@ -425,14 +425,18 @@ def _confidence_rows(c: Array | float | None, batch: tuple[int, ...], D: int) ->
     if c is None:
         return _ones(M, D)
     a = np.asarray(c, dtype=np.float64)
-    try:
-        a = np.broadcast_to(a, (*batch, *tail)).reshape(M, *tail)
+    try:  # a confidence of the tick's shape (the study's, every tick) is only reshaped
+        if a.shape != (*batch, *tail):
+            a = np.broadcast_to(a, (*batch, *tail))
+        a = a.reshape(M, *tail)  # a new array object (a view where it can): never the caller's
     except ValueError:
         what = "confidence" if D else "confidence_joint"
         raise ConfigError(f"{what} of shape {a.shape} for a tick of batch {batch}") from None
-    if not ((a >= 0.0) & (a <= 1.0)).all():  # NaN fails too
+    # Two reductions, no temporaries (checked every tick); NaN fails too (min/max keep it).
+    if a.size and not (a.min() >= 0.0 and a.max() <= 1.0):
         what = "confidence" if D else "confidence_joint"
         raise ConfigError(f"{what} must be in [0, 1]")
+    a.flags.writeable = False
     return a
 
 
