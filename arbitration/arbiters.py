@@ -181,22 +181,23 @@ class FilterState:
 
     @property
     def alpha_window(self) -> Array:
-        """DS's alpha window (W, M, 6 + F), oldest tick first (`modes.ds.Windows`)."""
+        """DS's alpha window (W, M', 6 + F), oldest tick first (`modes.ds.Windows`: M' = M,
+        or in a batch that mixes modes DS's own rows, `Windows.rows`)."""
         return self.of(Mode.DS).alpha_window
 
     @property
     def B_window(self) -> Array:
-        """DS's B window (W, M, 6 + F), oldest tick first."""
+        """DS's B window (W, M', 6 + F), oldest tick first."""
         return self.of(Mode.DS).B_window
 
     @property
     def alpha_rows(self) -> tuple[Array, ...]:
-        """DS's alpha window's W rows (M, 6 + F), oldest first."""
+        """DS's alpha window's W rows (M', 6 + F), oldest first."""
         return tuple(self.alpha_window)
 
     @property
     def B_rows(self) -> tuple[Array, ...]:
-        """DS's B window's W rows (M, 6 + F), oldest first."""
+        """DS's B window's W rows (M', 6 + F), oldest first."""
         return tuple(self.B_window)
 
     def select(self, keep: NDArray[np.bool_]) -> FilterState:
