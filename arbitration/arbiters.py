@@ -231,8 +231,11 @@ class RowModes:
     @functools.cached_property
     def index(self) -> tuple[tuple[Mode, NDArray[np.intp]], ...]:
         """(mode, indices of its rows) for each mode present (computed once: a study steps
-        the same rows many ticks)."""
-        return tuple((m, np.flatnonzero(mask)) for m, mask in self.groups())
+        the same rows many ticks; read-only: a mode's state may keep them)."""
+        out = tuple((m, np.flatnonzero(mask)) for m, mask in self.groups())
+        for _, rows in out:
+            rows.flags.writeable = False
+        return out
 
     @functools.cached_property
     def reads_allocation(self) -> Array:

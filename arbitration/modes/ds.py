@@ -109,15 +109,17 @@ class Windows:
             if rows.shape[0] == self.alpha_window.shape[1]:  # every row: its own windows
                 return self
             index = rows
-        elif np.array_equal(self.rows, rows):
+        elif self.rows is rows:  # the tick's rows, as the last tick's (the common case)
             return self
+        elif np.array_equal(self.rows, rows):  # the same rows: kept as the tick's object
+            return Windows(self.alpha_window, self.B_window, self.count, rows)
         else:
             index = np.searchsorted(self.rows, rows)
             if np.any(index >= self.rows.shape[0]) or not np.array_equal(self.rows[index], rows):
                 raise ContractError("DS's windows hold no state for some of the tick's rows")
         a, b = self.alpha_window[:, index], self.B_window[:, index]
         a.flags.writeable = b.flags.writeable = False
-        return Windows(a, b, self.count, np.array(rows, dtype=np.intp))
+        return Windows(a, b, self.count, rows)
 
 
 def initial_state(config: ArbitrationConfig, dims: int, M: int) -> Windows:
