@@ -442,7 +442,8 @@ class KitchenEnv:
         )
         self._pose_links = [i for i in sorted(loaded.links.values()) if i >= 0]
         self._pose_bodies = [b for _, b in body_frames]
-        return SceneGeometry(tuple(frames), tuple(static), tuple(visuals))
+        fx, fy, fz = (float(v) for v in self.placement.point(np.array(SceneGeometry.focus_m)))
+        return SceneGeometry(tuple(frames), tuple(static), tuple(visuals), (fx, fy, fz))
 
     def poses(self) -> ScenePoses:
         """World pose of every frame of `geometry()` now (wxyz quaternions)."""
