@@ -5,9 +5,12 @@ the description), an optional hand mounted on the arm (a second URDF and the fix
 joins them), the arm's joints and rest posture, the palm link and the palm frame in it, the
 fingers (each finger: its joints, each joint's open and closed position, the motor effort,
 and the human fingers whose openness it follows), the home pose and the velocity and
-workspace limits. `robot/robots/` ships `iiwa.toml` (the KUKA iiwa with the project's
-four-finger hand) and `panda.toml` (the Franka Panda of `pybullet_data` with its two-finger
-gripper: one finger, `gripper`, whose openness drives both jaws).
+workspace limits, and optionally where the task's scene stands in its base frame (`[task]`,
+`robot.placement`; else computed, `robot.reach`) and whether its arm holds its own weight
+(`[arm] gravity_compensation`, default true). `robot/robots/` ships `iiwa.toml` (the KUKA
+iiwa with the project's four-finger hand) and `panda.toml` (the Franka Panda of
+`pybullet_data` with its two-finger gripper: one finger, `gripper`, whose openness drives
+both jaws).
 
 `load_description(NAME_OR_FILE)` reads and validates one: a shipped name, or a path to a
 `.toml` file. Everything wrong with it (a malformed file, a missing field, a number outside
