@@ -5,13 +5,22 @@ value into one `json.dumps(..., allow_nan=False)` accepts: non-finite floats bec
 numpy scalars and arrays Python ones, tuples lists, dataclasses dicts of their fields, and
 dict keys strings. `finite` does it for one number. Both are pure and import nothing of the
 app, so any layer may use them (tests/test_layering.py).
+
+`read_json` is the one reader of a JSON file that a user hands over (a configuration, a
+session's metadata, a dataset's info, a tuned best.json): a missing, unreadable or malformed
+file is one line (`InputError`, exit 2) that names the option or role it came from and the
+file, never a traceback.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
+from pathlib import Path
 from typing import Any
+
+from dsteleop.errors import InputError
 
 
 def finite(x: object) -> float | None:
@@ -37,3 +46,24 @@ def jsonable(value: object) -> Any:
     if callable(tolist):
         return jsonable(tolist())
     return value
+
+
+def read_json(path: str | Path, role: str = "") -> Any:
+    """The parsed content of the JSON file at `path`.
+
+    Args:
+        path: the file.
+        role: what the file is to the command (`--config`, "session metadata"), put before
+            the path in the message; empty for none.
+
+    Raises:
+        InputError: the file is missing, unreadable, not UTF-8 or not JSON; one line:
+            "ROLE PATH: file not found" or "ROLE PATH: not a JSON file (REASON)".
+    """
+    where = f"{role} {path}" if role else str(path)
+    try:
+        return json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(f"{where}: file not found") from None
+    except (OSError, ValueError) as exc:  # UnicodeDecodeError and JSONDecodeError are ValueErrors
+        raise InputError(f"{where}: not a JSON file ({exc})") from None

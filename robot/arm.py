@@ -59,8 +59,9 @@ removed as soon as the thumb or all the other fingers are commanded open; its st
 alone.
 
 Steady state: before each physics step every robot link is held up by its own weight
-(`RobotConfig.gravity_compensation`: m g upwards at its centre of mass), as a real arm's
-controller feeds its gravity torques forward. Without it the position motors (10 solver
+(gravity compensation, the description's `[arm] gravity_compensation`, on unless it says
+false, or `RobotConfig.gravity_compensation`: m g upwards at its centre of mass), as a real
+arm's controller feeds its gravity torques forward. Without it the position motors (10 solver
 iterations) leave the arm 0.1-1.3 mrad short of its target under gravity, and a goal-seeking
 policy that steps from the achieved palm (X_next = X + K_r e dt) stops where its step equals
 that sag: 3-8 mm short at K_r = 2 /s (docs/robot.md, `scripts/steady_state.py`); with it,
@@ -88,7 +89,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from dsteleop.arbitration.se3 import HandState
+from dsteleop.arbitration.se3 import HandState, so3_log
 from dsteleop.errors import ConfigError, InputError
 from dsteleop.robot.bullet import pb
 from dsteleop.robot.description import RobotDescription
@@ -173,9 +174,18 @@ class RobotConfig:
         control_dt_s: simulated time of one control tick [s] (the loop's period).
         gravity_compensation: hold every robot link up against gravity (its weight at its
             centre of mass, each physics step), as a real arm's controller compensates its
-            own weight (module docstring: steady state). Off by default for now: it moves
-            the demo's measured rates by a seed or two (docs/robots.md), which are to be
-            re-measured over 20 seeds per mode and robot before it becomes the default.
+            own weight (module docstring: steady state); None (the default): as the robot's
+            description says (`[arm] gravity_compensation`, on unless it says false: the
+            iiwa and the Panda say false, docs/robots.md).
+        unreachable_stall_s: a target the IK keeps missing by more than a quarter of what
+            each tick asks of it (and by more than `stall_min_m` / `stall_min_rad`) for this
+            long is reported unreachable too [s]: the loop steps the palm a little towards
+            its goal each tick, so each tick's target lies near the palm and its IK error
+            stays below `unreachable_tol_m` even when the arm stands at its joint limits
+            short of a goal out of reach (the palm stalled 6 cm short of the place pose with
+            `unreachable` false).
+        stall_min_m: the smallest position miss that counts as a stall [m] ...
+        stall_min_rad: ... and orientation miss [rad].
     """
 
     substeps: int = 3
@@ -196,7 +206,10 @@ class RobotConfig:
     pad_stiffness_n_per_m: float = 1.0e4
     pad_damping_n_s_per_m: float = 30.0
     control_dt_s: float = CONTROL_DT_S
-    gravity_compensation: bool = False
+    gravity_compensation: bool | None = None
+    unreachable_stall_s: float = 0.5
+    stall_min_m: float = 5e-4
+    stall_min_rad: float = 5e-3
 
     @classmethod
     def for_period(cls, control_dt_s: float, **kw: Any) -> RobotConfig:
@@ -230,6 +243,9 @@ class RobotConfig:
             "pad_stiffness_n_per_m",
             "pad_damping_n_s_per_m",
             "control_dt_s",
+            "unreachable_stall_s",
+            "stall_min_m",
+            "stall_min_rad",
         ):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
@@ -272,7 +288,9 @@ class BulletArmState:
             prismatic joint].
         contacts: contact points of robot links with other bodies.
         target_clamped: the last position target lay outside the workspace and was moved.
-        unreachable: the IK solution misses the (clamped) target by more than the tolerance.
+        unreachable: the IK solution misses the (clamped) target by more than the tolerance,
+            or has fallen short of every tick's target for `RobotConfig.unreachable_stall_s`
+            (the arm stalled short of a goal out of reach).
         ik_error_m: position error of the IK solution [m].
         ik_error_rad: orientation error of the IK solution [rad].
         grasped: name of the body held by the grasp helper, or None.
@@ -421,12 +439,17 @@ class BulletArm:
         self._q_arm_cmd = self._q_rest.copy()
         self._clamped = False
         self._unreachable = False
+        self._stall_ticks = 0
+        self._stalled = False
+        self._stall_limit = max(1, round(config.unreachable_stall_s / config.control_dt_s))
+        self._stall_said = False
         self._ik_err_m = 0.0
         self._ik_err_rad = 0.0
         #: gravity compensation: each moving link and the force that holds it up [N]
         self._gc_links: list[int] = []
         self._gc_forces: list[tuple[float, float, float]] = []
-        if config.gravity_compensation:
+        gc = config.gravity_compensation
+        if desc.gravity_compensation if gc is None else gc:
             params = pb.getPhysicsEngineParameters(physicsClientId=client)
             gx, gy, gz = (float(params[f"gravityAcceleration{a}"]) for a in "XYZ")
             for li in sorted(set(loaded.links.values()) - {-1}):
@@ -515,6 +538,9 @@ class BulletArm:
         self._state_cache = None
         self.release()
         self._stall_q[:] = np.nan
+        self._stall_ticks = 0
+        self._stalled = False
+        self._stall_said = False
         self.set_target(p_m, R, g)
 
     def set_target(self, position_m: Array, rotation: Array, openness: Array) -> None:
@@ -596,6 +622,9 @@ class BulletArm:
         return self._q_closed + per_joint * (self._q_open - self._q_closed)
 
     def _solve_ik(self, p_m: Array, R: Array, iterations: int) -> Array:
+        p_from, R_from = self._chain.fk(self._q_arm_cmd)
+        asked_m = float(np.linalg.norm(p_m - p_from))
+        asked_rad = float(np.linalg.norm(so3_log(R @ R_from.T)))
         res = self._chain.ik(
             p_m,
             R,
@@ -607,10 +636,32 @@ class BulletArm:
             damping=self.config.ik_damping_m,
         )
         self._ik_err_m, self._ik_err_rad = res.error_m, res.error_rad
-        self._unreachable = (
-            res.error_m > self.config.unreachable_tol_m
-            or res.error_rad > self.config.unreachable_tol_rad
+        c = self.config
+        # A stall: the step met less than three quarters of what the tick asked. A leaky
+        # count (+1 a stalled tick, -2 another) with hysteresis: set at the limit, cleared
+        # at 0, so the odd tick the palm jitters forward does not clear it.
+        stalled = (res.error_m > c.stall_min_m and res.error_m > 0.25 * asked_m) or (
+            res.error_rad > c.stall_min_rad and res.error_rad > 0.25 * asked_rad
         )
+        n = self._stall_ticks + 1 if stalled else max(0, self._stall_ticks - 2)
+        self._stall_ticks = min(n, self._stall_limit)
+        if self._stall_ticks >= self._stall_limit:
+            self._stalled = True
+        elif self._stall_ticks == 0:
+            self._stalled = False
+        self._unreachable = (
+            res.error_m > c.unreachable_tol_m
+            or res.error_rad > c.unreachable_tol_rad
+            or self._stalled
+        )
+        if self._stalled and not self._stall_said:
+            self._stall_said = True  # once per reset: the first stall, with where
+            log.warning(
+                "the palm stalls short of its target (%.3f, %.3f, %.3f) m: out of reach, the "
+                "arm misses it by %.1f mm / %.1f deg a tick (dsteleop robot check tells "
+                "whether the task is in reach)",
+                *p_m, 1e3 * res.error_m, math.degrees(res.error_rad),
+            )  # fmt: skip
         return res.q_rad
 
     def follow(self, joint_positions: Mapping[str, float], openness: Array) -> None:

@@ -5,9 +5,12 @@ the description), an optional hand mounted on the arm (a second URDF and the fix
 joins them), the arm's joints and rest posture, the palm link and the palm frame in it, the
 fingers (each finger: its joints, each joint's open and closed position, the motor effort,
 and the human fingers whose openness it follows), the home pose and the velocity and
-workspace limits. `robot/robots/` ships `iiwa.toml` (the KUKA iiwa with the project's
-four-finger hand) and `panda.toml` (the Franka Panda of `pybullet_data` with its two-finger
-gripper: one finger, `gripper`, whose openness drives both jaws).
+workspace limits, and optionally where the task's scene stands in its base frame (`[task]`,
+`robot.placement`; else computed, `robot.reach`) and whether its arm holds its own weight
+(`[arm] gravity_compensation`, default true). `robot/robots/` ships `iiwa.toml` (the KUKA
+iiwa with the project's four-finger hand) and `panda.toml` (the Franka Panda of
+`pybullet_data` with its two-finger gripper: one finger, `gripper`, whose openness drives
+both jaws).
 
 `load_description(NAME_OR_FILE)` reads and validates one: a shipped name, or a path to a
 `.toml` file. Everything wrong with it (a malformed file, a missing field, a number outside
@@ -34,6 +37,7 @@ from pathlib import Path
 from typing import Any
 
 from dsteleop.errors import InputError
+from dsteleop.robot.placement import Placement
 from dsteleop.robot.urdf import UrdfModel, no_joint, package_search_path, resolve_meshes
 
 if sys.version_info >= (3, 11):
@@ -73,7 +77,7 @@ class Range:
 
     def __str__(self) -> str:
         def num(v: float) -> str:
-            return {TAU: "2pi", -TAU: "-2pi"}.get(v, f"{v:g}")
+            return {TAU: "2pi", -TAU: "-2pi", math.pi: "pi", -math.pi: "-pi"}.get(v, f"{v:g}")
 
         lo, hi = num(self.lo), num(self.hi)
         return f"{'(' if self.lo_open else '['}{lo}, {hi}{')' if self.hi_open else ']'}"
@@ -108,6 +112,9 @@ RANGES: dict[str, Range] = {
     "limits.max_speed_m_s": Range(0.0, 2.0, lo_open=True),
     "limits.max_rate_rad_s": Range(0.0, TAU, lo_open=True),
     "limits.max_finger_rate_per_s": Range(0.0, 30.0, lo_open=True),
+    # the task's scene in the base frame (`robot.placement`): within a metre, half a turn
+    "task.xyz_m": Range(-1.0, 1.0),
+    "task.yaw_rad": Range(-math.pi, math.pi),
 }
 
 
@@ -240,6 +247,11 @@ class RobotDescription:
             `link_groups` names its link.
         finger_limits: (joint, lower, upper) of every finger joint with URDF limits, filled
             in at loading.
+        task_xyz_m: `[task] xyz_m`: the task's scene origin in the base frame [m]
+            (`robot.placement`), or None: no `[task]` table (the placement is computed).
+        task_yaw_rad: `[task] yaw_rad`: the scene's turn about the base z axis [rad].
+        gravity_compensation: `[arm] gravity_compensation`: the arm holds its own weight
+            (`robot.arm`, steady state; default true).
     """
 
     name: str
@@ -273,6 +285,17 @@ class RobotDescription:
     link_groups: tuple[tuple[str, str], ...] = ()
     mimic_joints: tuple[MimicJoint, ...] = ()
     finger_limits: tuple[tuple[str, float, float], ...] = ()
+    task_xyz_m: tuple[float, float, float] | None = None
+    task_yaw_rad: float = 0.0
+    gravity_compensation: bool = True
+
+    @property
+    def task_placement(self) -> Placement | None:
+        """Where the description stands the task's scene (its `[task]` table,
+        `robot.placement`), or None: it says nothing (`robot.reach.task_placement` decides)."""
+        if self.task_xyz_m is None:
+            return None
+        return Placement(self.task_xyz_m, self.task_yaw_rad, "description")
 
     @property
     def finger_names(self) -> tuple[str, ...]:
@@ -339,13 +362,14 @@ def description_path(name_or_file: str, given_by: str = "--robot") -> Path:
     )
 
 
-def load_description(name_or_file: str) -> RobotDescription:
-    """Read and validate a robot description (module docstring).
+def load_description(name_or_file: str, given_by: str = "--robot") -> RobotDescription:
+    """Read and validate a robot description (module docstring); `given_by` names where
+    the name came from in the one-line errors.
 
     Raises:
         InputError: the file is missing or malformed, or a field is wrong (one line).
     """
-    path = description_path(name_or_file)
+    path = description_path(name_or_file, given_by)
     try:
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as exc:
@@ -545,6 +569,21 @@ def _parse(data: Any, path: Path) -> RobotDescription:
         package_path=_package_path(f),
         link_groups=link_groups,
     )
+    if arm.has("gravity_compensation"):
+        gc = arm.get("gravity_compensation")
+        if not isinstance(gc, bool):
+            raise arm.fail("gravity_compensation", f"must be true or false, got {gc!r}")
+        desc = dataclasses.replace(desc, gravity_compensation=gc)
+    if f.has("task"):
+        t = f.table("task")
+        known = {"xyz_m", "yaw_rad"}
+        if set(t.d) - known:
+            raise t.fail(sorted(set(t.d) - known)[0], "is not a field of [task] (xyz_m, yaw_rad)")
+        desc = dataclasses.replace(
+            desc,
+            task_xyz_m=t.vec3("xyz_m", (0.0, 0.0, 0.0)),
+            task_yaw_rad=t.num("yaw_rad") if t.has("yaw_rad") else 0.0,
+        )
     if not all(a <= b <= c for a, b, c in zip(lo, desc.home_position_m, hi, strict=True)):
         raise home.fail("position_m", "must lie inside the workspace box")
     return desc

@@ -38,6 +38,8 @@ from dsteleop.robot.description import RobotDescription, load_description
 from dsteleop.robot.kinematics import ArmChain
 from dsteleop.robot.model import LoadedRobot, load_robot, palm_tip_joints, robot_urdf_text
 from dsteleop.robot.perception import PerceptionError
+from dsteleop.robot.placement import Placement
+from dsteleop.robot.reach import PLACE_POSITION_M, task_placement
 from dsteleop.robot.scene import SceneGeometry, ScenePoses, VisualGeometry, VisualKind
 from dsteleop.robot.task import (
     Phase,
@@ -79,22 +81,27 @@ class EnvConfig:
     Attributes:
         robot: control and physics settings of the robot.
         task: task settings (goal noise, timeout, ...).
-        place_position_m: true place goal: palm above the bin centre [m].
+        place_position_m: true place goal: palm above the bin centre, scene frame [m]
+            (`robot.placement`: the placement stands it in the base frame).
         settle_s: simulated time the scene settles after a reset, robot holding home [s].
         description: the robot (default: the iiwa with the four-finger hand).
         infer: the robot is not told its utensil: every utensil is a candidate goal
             (`PickPlaceTask.candidates_true`), and the task's utensil is the one grasped.
         perception: how the robot's known goals are drawn (None: isotropic, the task's
             goal noise; `robot.perception`).
+        placement: where the task's scene stands in the base frame (`robot.placement`;
+            None: the description's `[task]`, else computed, `robot.reach.task_placement`:
+            the shipped robots' is the identity).
     """
 
     robot: RobotConfig = field(default_factory=RobotConfig)
     task: TaskConfig = field(default_factory=TaskConfig)
-    place_position_m: tuple[float, float, float] = (BIN_CENTER_M[0], BIN_CENTER_M[1], 0.45)
+    place_position_m: tuple[float, float, float] = PLACE_POSITION_M
     settle_s: float = 1.0
     description: RobotDescription = field(default_factory=lambda: load_description("iiwa"))
     infer: bool = False
     perception: PerceptionError | None = None
+    placement: Placement | None = None
 
     @property
     def home_position_m(self) -> tuple[float, float, float]:
@@ -110,7 +117,7 @@ class EnvConfig:
         return np.where(np.abs(R) < 1e-12, 0.0, R)
 
 
-def _regions() -> SceneRegions:
+def _regions(placement: Placement) -> SceneRegions:
     h = BIN_INNER_HALF_M
     bx, by = BIN_CENTER_M
     hx, hy = HOLDER_CENTER_M
@@ -121,6 +128,7 @@ def _regions() -> SceneRegions:
             (hx + HOLDER_HALF_M[0], hy + HOLDER_HALF_M[1] + 0.02, TABLE_TOP_Z_M + 0.4),
         ),
         floor_below_z_m=TABLE_TOP_Z_M - 0.1,
+        placement=placement,
     )
 
 
@@ -139,6 +147,8 @@ class KitchenEnv:
         self._chain = ArmChain.from_urdf(
             self._urdf_text, desc.arm_joints, palm_tip_joints(desc, self._urdf_text)
         )
+        self.placement = self._placement_of(self.config)
+        """Where the task's scene stands in the base frame (`robot.placement`)."""
         self._robot: BulletArm | None = None
         self._loaded: LoadedRobot | None = None
         self._world: WorldBodies | None = None
@@ -148,6 +158,12 @@ class KitchenEnv:
         self._pose_bodies: list[int] = []
         self.last_events: list[TaskEvent] = []
         """Events of the last `step()`."""
+
+    @staticmethod
+    def _placement_of(config: EnvConfig) -> Placement:
+        if config.placement is not None:
+            return config.placement
+        return task_placement(config.description, config.robot)
 
     # ------------------------------------------------------------------ lifecycle
     def close(self) -> None:
@@ -182,10 +198,12 @@ class KitchenEnv:
         if self._c < 0:
             raise InputError("environment is closed")
         c = self._c
+        if self.config.placement is not None:  # a new config may stand the scene elsewhere
+            self.placement = self.config.placement
         pb.resetSimulation(physicsClientId=c)
         pb.setGravity(0.0, 0.0, -GRAVITY_MPS2, physicsClientId=c)
         self._loaded = load_robot(c, urdf_text=self._urdf_text)
-        self._world = build_world(c)
+        self._world = build_world(c, self.placement)
         self._robot = BulletArm(
             c,
             self._loaded,
@@ -202,14 +220,16 @@ class KitchenEnv:
             self._robot.step()
         self._robot.reset_clock()
         pick = self._grasp_pose(utensil)
-        place = (np.asarray(self.config.place_position_m, dtype=np.float64), R_PALM_DOWN.copy())
+        place = self.placement.pose(
+            np.asarray(self.config.place_position_m, dtype=np.float64), R_PALM_DOWN.copy()
+        )
         candidates = {n: self._grasp_pose(n) for n in UTENSIL_NAMES} if self.config.infer else {}
         self._task = PickPlaceTask(
             self.config.task,
             utensil,
             pick,
             place,
-            _regions(),
+            _regions(self.placement),
             n_fingers,
             seed,
             candidates_true=candidates,
@@ -421,7 +441,8 @@ class KitchenEnv:
         )
         self._pose_links = [i for i in sorted(loaded.links.values()) if i >= 0]
         self._pose_bodies = [b for _, b in body_frames]
-        return SceneGeometry(tuple(frames), tuple(static), tuple(visuals))
+        fx, fy, fz = (float(v) for v in self.placement.point(np.array(SceneGeometry.focus_m)))
+        return SceneGeometry(tuple(frames), tuple(static), tuple(visuals), (fx, fy, fz))
 
     def poses(self) -> ScenePoses:
         """World pose of every frame of `geometry()` now (wxyz quaternions)."""
@@ -446,5 +467,5 @@ class KitchenEnv:
             P[k] = p
             Q[k] = (w, x, y, z)
             k += 1
-        P[k] = (0.0, 0.0, FLOOR_Z_M)
+        P[k] = self.placement.point(np.array([0.0, 0.0, FLOOR_Z_M]))
         return ScenePoses(self.robot.state_time_s, P, Q)

@@ -45,6 +45,7 @@ from dsteleop.arbitration.se3 import HandState, so3_log
 from dsteleop.arbitration.se3 import stack as stack_states
 from dsteleop.errors import ConfigError
 from dsteleop.robot.perception import PerceptionError
+from dsteleop.robot.placement import SHIPPED, Placement
 
 Array = NDArray[np.float64]
 
@@ -154,7 +155,7 @@ class TaskConfig:
 
 @dataclass(frozen=True)
 class Region:
-    """An axis-aligned box in the base frame [m]."""
+    """An axis-aligned box in the scene frame [m] (`robot.placement`)."""
 
     lower_m: tuple[float, float, float]
     upper_m: tuple[float, float, float]
@@ -189,17 +190,20 @@ class TaskObservation:
 
 @dataclass(frozen=True)
 class SceneRegions:
-    """Where outcomes are decided, base frame.
+    """Where outcomes are decided, in the scene frame (`robot.placement`).
 
     Attributes:
         bin_inner: the bin's inner volume (up to well above its rim).
         holder: the holder's volume (utensils resting here have no outcome yet).
         floor_below_z_m: a utensil below this height lies on the floor [m].
+        placement: where the scene stands in the base frame (observations come in the base
+            frame; the shipped layout's is the identity).
     """
 
     bin_inner: Region
     holder: Region
     floor_below_z_m: float
+    placement: Placement = SHIPPED
 
 
 @dataclass(frozen=True)
@@ -422,7 +426,7 @@ class PickPlaceTask:
             and float(np.linalg.norm(window - obs.p_utensil_m, axis=1).max()) < c.rest_move_m
         )
         if settled:
-            p = obs.p_utensil_m
+            p = self.regions.placement.to_scene(obs.p_utensil_m)
             if self.regions.bin_inner.contains(p):
                 return Outcome(True, "in_bin", t_run, self.utensil)
             if p[2] < self.regions.floor_below_z_m:

@@ -15,6 +15,11 @@ top is the plane z = 0 (the robot's base stands at the table's near edge):
               task imports no PyBullet): the robot perceives the utensils and the bin
               through it, 0.8-1.0 m away
 
+The layout is written in the scene frame; a robot's placement (`robot.placement`: the
+description's `[task]` table, or computed) stands the whole scene in its base frame
+(`build_world(client, placement)`); the shipped robots' placement is the identity, so for
+them the scene frame is the base frame and the numbers above are base-frame numbers.
+
 Every object is built from primitives with `createMultiBody`; each body's base frame is its
 centre-of-mass frame (no inertial offset), so the shapes below are placed relative to it and
 a viewer can draw them from `getBasePositionAndOrientation` alone.
@@ -32,6 +37,7 @@ from numpy.typing import NDArray
 from dsteleop.arbitration.se3 import matrix_from_quat_wxyz, quat_wxyz_from_matrix, so3_exp
 from dsteleop.errors import ContractError
 from dsteleop.robot.bullet import pb
+from dsteleop.robot.placement import SHIPPED, Placement
 
 Array = NDArray[np.float64]
 
@@ -303,7 +309,7 @@ def bin_parts() -> tuple[Part, ...]:
 
 
 def pocket_center_m(index: int) -> Array:
-    """Centre of holder pocket `index` (0, 1, 2) on the holder plate, base frame [m]."""
+    """Centre of holder pocket `index` (0, 1, 2) on the holder plate, scene frame [m]."""
     return np.array(
         [
             HOLDER_CENTER_M[0] + (index - 1) * HOLDER_POCKET_PITCH_M,
@@ -313,25 +319,35 @@ def pocket_center_m(index: int) -> Array:
     )
 
 
-def utensil_start_pose(spec: UtensilSpec, index: int) -> tuple[Array, Array]:
-    """Initial COM pose of a utensil in its pocket, leaning back: (p [m], R)."""
+def utensil_start_pose(
+    spec: UtensilSpec, index: int, placement: Placement = SHIPPED
+) -> tuple[Array, Array]:
+    """Initial COM pose of a utensil in its pocket, leaning back: (p [m], R), in the base
+    frame of a robot that stands the scene at `placement`."""
     R = so3_exp(np.array([-UTENSIL_LEAN_RAD, 0.0, 0.0]))  # top towards +y
     bottom = pocket_center_m(index) + np.array([0.0, 0.012, 0.002])
-    return bottom + R @ spec.com_m(), R
+    return placement.pose(bottom + R @ spec.com_m(), R)
 
 
-def build_world(client: int) -> WorldBodies:
-    """Create the static scene and the utensils in `client` (dynamics set, not settled)."""
+def build_world(client: int, placement: Placement = SHIPPED) -> WorldBodies:
+    """Create the static scene and the utensils in `client` (dynamics set, not settled),
+    the scene stood at `placement` in the base frame (module docstring)."""
     table_parts = (_box((0.80, 1.40, 0.04), (0.0, 0.0, 0.0), (0.80, 0.70, 0.50, 1.0)),)
+    R = placement.rotation(np.eye(3))
     table = _compound(
-        client, table_parts, 0.0, np.array([0.62, 0.0, TABLE_TOP_Z_M - 0.02]), np.eye(3)
+        client,
+        table_parts,
+        0.0,
+        placement.point(np.array([0.62, 0.0, TABLE_TOP_Z_M - 0.02])),
+        R,
     )
-    hc = np.array([HOLDER_CENTER_M[0], HOLDER_CENTER_M[1], TABLE_TOP_Z_M])
-    holder = _compound(client, holder_parts(), 0.0, hc, np.eye(3))
-    bc = np.array([BIN_CENTER_M[0], BIN_CENTER_M[1], TABLE_TOP_Z_M])
-    bin_ = _compound(client, bin_parts(), 0.0, bc, np.eye(3))
+    hc = placement.point(np.array([HOLDER_CENTER_M[0], HOLDER_CENTER_M[1], TABLE_TOP_Z_M]))
+    holder = _compound(client, holder_parts(), 0.0, hc, R)
+    bc = placement.point(np.array([BIN_CENTER_M[0], BIN_CENTER_M[1], TABLE_TOP_Z_M]))
+    bin_ = _compound(client, bin_parts(), 0.0, bc, R)
     plane = pb.createCollisionShape(pb.GEOM_PLANE, physicsClientId=client)
-    floor = int(pb.createMultiBody(0.0, plane, -1, [0.0, 0.0, FLOOR_Z_M], physicsClientId=client))
+    p_floor = [float(v) for v in placement.point(np.array([0.0, 0.0, FLOOR_Z_M]))]
+    floor = int(pb.createMultiBody(0.0, plane, -1, p_floor, physicsClientId=client))
     bodies = WorldBodies(table, holder, bin_, floor, {})
     bodies.parts.update({table: table_parts, holder: holder_parts(), bin_: bin_parts()})
     bodies.names.update({table: "table", holder: "holder", bin_: "bin", floor: "floor"})
@@ -348,7 +364,7 @@ def build_world(client: int) -> WorldBodies:
             )
             for p in spec.parts
         )
-        p0, R0 = utensil_start_pose(spec, i)
+        p0, R0 = utensil_start_pose(spec, i, placement)
         uid = _compound(client, parts, spec.mass_kg, p0, R0)
         pb.changeDynamics(
             uid,

@@ -29,11 +29,13 @@ from dsteleop.robot.arm import RobotConfig
 from dsteleop.robot.bullet import pb
 from dsteleop.robot.description import load_description, shipped_robots
 from dsteleop.robot.env import R_PALM_DOWN, EnvConfig, KitchenEnv
+from dsteleop.robot.reach import task_placement
 from dsteleop.robot.scripted import goal_seeking_step, noise_free
 from dsteleop.robot.world import BIN_CENTER_M, pocket_center_m
 
-#: Still goals: 0.45 m above the table over each pocket (the iiwa hand's fingertips clear the
-#: utensils' tops at ~0.29 m by 6 cm; lower, they touch them) and the place pose above the bin.
+#: Still goals, scene frame: 0.45 m above the table over each pocket (the iiwa hand's
+#: fingertips clear the utensils' tops at ~0.29 m by 6 cm; lower, they touch them) and the
+#: place pose above the bin; each robot's placement stands them in its base frame.
 GOALS = {
     **{f"above pocket {i}": pocket_center_m(i) + np.array([0.0, -0.02, 0.44]) for i in range(3)},
     "place": np.array([BIN_CENTER_M[0], BIN_CENTER_M[1], 0.45]),
@@ -43,13 +45,16 @@ GOALS = {
 def run(robot: str, goal_name: str, how: str, seconds: float, gc: bool) -> dict[str, float]:
     desc = load_description(robot)
     cfg = EnvConfig(description=desc, robot=RobotConfig(gravity_compensation=gc))
+    placement = task_placement(desc, cfg.robot)
     with KitchenEnv(noise_free(cfg)) as env:
         state = env.reset("spoon")
-        goal = HandState(GOALS[goal_name], R_PALM_DOWN.copy(), np.ones(len(desc.fingers)))
+        p_goal, R_goal = placement.pose(GOALS[goal_name], R_PALM_DOWN)
+        goal = HandState(p_goal, R_goal, np.ones(len(desc.fingers)))
         X = state.palm
         ticks = round(seconds / env.dt_s)
         tail = max(1, round(0.5 / env.dt_s))
-        errs, sags = [], []
+        errs: list[float] = []
+        sags: list[float] = []
         arm = [env.robot._r.joints[n].index for n in desc.arm_joints]
         for k in range(ticks):
             X_next = goal if how == "command" else goal_seeking_step(X, goal, env.dt_s)

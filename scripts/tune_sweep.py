@@ -42,6 +42,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from dsteleop.app.jsonable import read_json
 from dsteleop.app.study import planar
 from dsteleop.app.study.objects import Objects
 from dsteleop.app.study.sweep import (
@@ -303,38 +304,39 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     todo = cells(args.design, args.world)
     commands: list[str] = []
-    for cell in todo:
-        name = cell_name(cell)
-        bests: dict[str, dict[str, Any]] = {}
-        for mode in modes:
-            run_dir = args.out / "runs" / name / mode
-            cmd = tune_command(
-                cell, mode, run_dir, budget, args.trajectories, args.workers, args.world
-            )
-            commands.append(shlex.join(cmd))
-            sys.stdout.write(shlex.join(cmd) + "\n")
-            sys.stdout.flush()
-            if args.dry_run:
-                continue
-            best = run_dir / "best.json"
-            if not best.exists():
-                done = subprocess.run([str(program), *cmd[1:]], check=False)
-                if done.returncode != 0:
-                    sys.stderr.write(f"tune_sweep: {name} {mode}: exit {done.returncode}\n")
-                    return 2
-            bests[mode] = json.loads(best.read_text())
-        for mode, folder in reused.items():
-            best = folder / "runs" / name / mode / "best.json"
-            bests[mode] = json.loads(best.read_text())
-            commands.append(f"# {mode}: reused from {best}")
-        if not args.dry_run:
-            args.out.mkdir(parents=True, exist_ok=True)
-            try:
+    name = ""
+    try:  # a best.json unreadable, or the runs' files that do not merge: one line
+        for cell in todo:
+            name = cell_name(cell)
+            bests: dict[str, dict[str, Any]] = {}
+            for mode in modes:
+                run_dir = args.out / "runs" / name / mode
+                cmd = tune_command(
+                    cell, mode, run_dir, budget, args.trajectories, args.workers, args.world
+                )
+                commands.append(shlex.join(cmd))
+                sys.stdout.write(shlex.join(cmd) + "\n")
+                sys.stdout.flush()
+                if args.dry_run:
+                    continue
+                best = run_dir / "best.json"
+                if not best.exists():
+                    done = subprocess.run([str(program), *cmd[1:]], check=False)
+                    if done.returncode != 0:
+                        sys.stderr.write(f"tune_sweep: {name} {mode}: exit {done.returncode}\n")
+                        return 2
+                bests[mode] = read_json(best)
+            for mode, folder in reused.items():
+                best = folder / "runs" / name / mode / "best.json"
+                bests[mode] = read_json(best)
+                commands.append(f"# {mode}: reused from {best}")
+            if not args.dry_run:
+                args.out.mkdir(parents=True, exist_ok=True)
                 data = cell_file(cell, bests, args.world)
-            except DsteleopError as e:  # the runs' best.json files do not merge: one line
-                sys.stderr.write(f"tune_sweep: {name}: {e}\n")
-                return 2
-            (args.out / f"{name}.json").write_text(json.dumps(data, indent=2) + "\n")
+                (args.out / f"{name}.json").write_text(json.dumps(data, indent=2) + "\n")
+    except DsteleopError as e:  # `name` is the cell the loop was at
+        sys.stderr.write(f"tune_sweep: {name}: {e}\n")
+        return 2
     if not args.dry_run:
         text = readme(commands, args, len(todo), time.perf_counter() - t0)
         (args.out / "README.md").write_text(text)

@@ -155,7 +155,7 @@ def test_a_failed_replay_or_tune_removes_the_out_folder_it_created(
     (bad / "meta.json").write_text("{")  # a session whose metadata does not read
     (bad / "ticks.jsonl").write_text("")
     assert main(["replay", str(bad), "--out", str(tmp_path / "new" / "replay")]) == 2
-    _one_line(capsys, "unreadable metadata")
+    _one_line(capsys, "session metadata", "meta.json: not a JSON file")
     assert not (tmp_path / "new").exists()
     argv = ["tune", "--objective", "study", "--trials", "1", "--resume"]
     assert main([*argv, "--out", str(tmp_path / "tune")]) == 2

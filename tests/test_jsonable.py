@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dsteleop.app.jsonable import finite, jsonable
+from dsteleop.app.jsonable import finite, jsonable, read_json
+from dsteleop.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -81,3 +82,30 @@ def test_no_module_defines_a_sanitiser_of_its_own() -> None:
                 if isinstance(node, ast.FunctionDef) and node.name in names:
                     found.append(f"{path.relative_to(ROOT)}:{node.lineno} {node.name}")
     assert found == []
+
+
+@pytest.mark.parametrize(
+    ("content", "needle"),
+    [
+        (None, "file not found"),
+        (b"{ not json", "not a JSON file"),
+        (b"\xff\xfe", "not a JSON file"),
+    ],
+)
+def test_read_json_says_in_one_line_what_is_wrong_with_the_file(
+    tmp_path: Path, content: bytes | None, needle: str
+) -> None:
+    path = tmp_path / "best.json"
+    if content is not None:
+        path.write_bytes(content)
+    with pytest.raises(InputError) as info:
+        read_json(path, "--config")
+    message = str(info.value)
+    assert message.startswith(f"--config {path}: {needle}"), message
+    assert "\n" not in message
+
+
+def test_read_json_reads_what_json_reads(tmp_path: Path) -> None:
+    path = tmp_path / "ok.json"
+    path.write_text('{"a": [1, 2.5, null]}', encoding="utf-8")
+    assert read_json(path) == {"a": [1, 2.5, None]}

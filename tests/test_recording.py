@@ -205,7 +205,7 @@ def test_bad_sessions_give_one_line_errors(ds_session: Path, tmp_path: Path) -> 
     lines[3] = lines[3][:20]
     (mid / "ticks.jsonl").write_text("\n".join(lines) + "\n")
     for target, needle in (
-        (bad, "unreadable metadata"),
+        (bad, "meta.json: not a JSON file"),
         (missing, "not found"),
         (mid, "corrupt record"),
     ):

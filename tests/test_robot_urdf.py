@@ -342,7 +342,7 @@ def out_of_range(key: str) -> tuple[dict[str, Any], str]:
     bad = r.hi + 0.5 * abs(r.hi) + 0.1
     parts, at, name = key.split("."), data, []
     for p in parts[:-1]:
-        at = at[p]
+        at = at.setdefault(p, {}) if isinstance(at, dict) else at[p]  # [task]: optional
         name.append(p)
         if isinstance(at, list):  # fingers, joints: the first
             at = at[0]

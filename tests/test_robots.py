@@ -336,33 +336,75 @@ def test_the_page_draws_the_panda_and_its_one_gauge_of_fingers() -> None:
 
 @pytest.mark.parametrize("robot", shipped_robots())
 def test_the_palm_reaches_a_still_pose_within_2_mm_on_every_shipped_robot(robot: str) -> None:
-    """The goal-seeking policy from the achieved palm (as the loop drives it) brings the palm
-    within 2 mm of a still goal in free air when the arm holds its own weight (gravity
-    compensation, docs/robot.md; an option, off by default for now). Without it, each
-    tick's command left the arm sagging ~1 mrad and the policy, stepping from the achieved
-    palm, stalled 3-8 mm short (iiwa 4.9 mm, Panda 7.7 mm at the worst of these goals;
-    `scripts/steady_state.py`)."""
+    """Every description in robot/robots/ (a new one is covered by adding its file), as it
+    ships: the palm commanded to a still pose in free air (over the middle pocket, and the
+    place pose, where the robot's placement stands them) ends within 2 mm of it
+    (`robot.check.measure_steady`: the mean over the last 0.5 s of 10 s), and so does the
+    goal-seeking policy stepping from the achieved palm (as the loop does) when the arm
+    holds its own weight (gravity compensation: on unless the description says false). An
+    arm that sags under position control (a 6-axis arm's 1.5-2.6 mm, issue 33) needs the
+    compensation: without it the policy stops ~15 times the sag short. A robot whose task
+    is refused (out of its reach wherever the scene stands) is measured at its home.
+
+    With the compensation forced on, every robot's goal-seeking policy is within 2 mm too:
+    the iiwa and the Panda ship without it (their demo rates were measured so; their
+    commanded pose is within 0.5 mm), and their policy then stops 1-3 mm (iiwa) and 5-6 mm
+    (Panda) short (`scripts/steady_state.py --no-gravity-compensation`)."""
     from dsteleop.robot.arm import RobotConfig
-    from dsteleop.robot.env import R_PALM_DOWN, EnvConfig, KitchenEnv
-    from dsteleop.robot.scripted import goal_seeking_step, noise_free
-    from dsteleop.robot.world import BIN_CENTER_M, pocket_center_m
+    from dsteleop.robot.check import STEADY_TOL_M, measure_steady
+    from dsteleop.robot.placement import SHIPPED
+    from dsteleop.robot.reach import home_pose, require_reachable
 
     desc = load_description(robot)
-    goals = (
-        pocket_center_m(2) + np.array([0.0, -0.02, 0.44]),  # over the ladle, fingers clear
-        np.array([BIN_CENTER_M[0], BIN_CENTER_M[1], 0.45]),  # the place pose
-    )
-    for p_goal in goals:
-        config = EnvConfig(description=desc, robot=RobotConfig(gravity_compensation=True))
-        with KitchenEnv(noise_free(config)) as env:
-            X = env.reset("spoon").palm
-            goal = HandState(p_goal, R_PALM_DOWN.copy(), np.ones(len(desc.fingers)))
-            errors = []
+    goals = None
+    try:
+        placement = require_reachable(desc)  # the scene where the robot reaches it
+    except InputError:  # the task is refused for this robot: its home is a still pose too
+        placement, goals = SHIPPED, {"home": home_pose(desc)}
+    for s in measure_steady(desc, placement, goals=goals):
+        assert s.tried and not s.contact, (robot, s)
+        assert s.command_m <= STEADY_TOL_M, (robot, s)
+        assert s.seek_m <= STEADY_TOL_M or not desc.gravity_compensation, (robot, s)
+        assert s.ok
+    for s in measure_steady(desc, placement, RobotConfig(gravity_compensation=True), goals):
+        assert s.command_m <= STEADY_TOL_M and s.seek_m <= STEADY_TOL_M, (robot, s)
+
+
+def test_an_arm_that_sags_holds_its_weight_by_default_and_reaches_the_pose(tmp_path: Path) -> None:
+    """An iiwa whose motors hold a tenth as stiffly (position gain 0.03, as a sagging arm's)
+    and whose description says nothing of gravity compensation: it is on (the default), and
+    the palm commanded to the place pose ends within 2 mm of it; without it the arm sags
+    2.45 mm there (the default before issue 33), and `[arm] gravity_compensation` must be a
+    boolean (one line otherwise)."""
+    from dsteleop.robot.arm import RobotConfig
+    from dsteleop.robot.env import R_PALM_DOWN, EnvConfig, KitchenEnv
+    from dsteleop.robot.scripted import noise_free
+
+    hand = (ROBOTS_DIR / "../assets/dsteleop_hand.urdf").resolve()
+    text = (ROBOTS_DIR / "iiwa.toml").read_text()
+    text = text.replace('"../assets/dsteleop_hand.urdf"', f'"{hand}"')
+    text = text.replace("gravity_compensation = false\n", "")
+    path = tmp_path / "soft.toml"
+    path.write_text(text.replace("position_gain = 0.3", "position_gain = 0.03"))
+    desc = load_description(str(path))
+    assert desc.gravity_compensation
+    goal = np.array([0.58, -0.26, 0.45])
+
+    def error_m(gc: bool | None) -> float:
+        cfg = EnvConfig(description=desc, robot=RobotConfig(gravity_compensation=gc))
+        with KitchenEnv(noise_free(cfg)) as env:
+            env.reset("spoon")
+            seen = []
             for _ in range(round(10.0 / env.dt_s)):
-                X_next = goal_seeking_step(X, goal, env.dt_s)
-                env.set_target(X_next.position, X_next.rotation, X_next.openness)
-                state = env.step()
-                X = state.palm
-                errors.append(float(np.linalg.norm(X.position - p_goal)))
-            assert not state.contacts, "in free air"
-            assert max(errors[-15:]) < 0.002, (robot, p_goal, errors[-1])
+                env.set_target(goal, R_PALM_DOWN, np.ones(4))
+                seen.append(float(np.linalg.norm(env.step().palm.position - goal)))
+            return float(np.mean(seen[-15:]))
+
+    assert error_m(None) <= 0.002
+    assert error_m(False) > 0.002  # the sag the default removes
+    path.write_text(
+        text.replace("position_gain = 0.3", 'position_gain = 0.3\ngravity_compensation = "yes"')
+    )
+    with pytest.raises(InputError) as err:
+        load_description(str(path))
+    assert "arm.gravity_compensation must be true or false, got 'yes'" in str(err.value)

@@ -580,3 +580,20 @@ def test_axes_sweep_runs_each_cell_with_its_own_configuration(
     code = main([*plain_args, "--resume"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "was computed with other settings" in err[0]
+
+
+def test_tune_sweep_stops_in_one_line_on_a_corrupt_best_json(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A best.json that a crashed or interrupted tune left half-written is one line and exit
+    2 (scripts/tune_sweep.py reads each run's best.json through app/jsonable.read_json), not a
+    JSONDecodeError traceback."""
+    ts = _tune_sweep()
+    cell = ts.cells("axes")[0]
+    best = tmp_path / "runs" / ts.cell_name(cell) / "DS" / "best.json"
+    best.parent.mkdir(parents=True)
+    best.write_text('{"arbitration": {"kappa": 8')  # cut mid-file
+    assert ts.main(["--out", str(tmp_path), "--modes", "DS", "--trials", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert err[0].startswith(f"tune_sweep: {ts.cell_name(cell)}: {best}: not a JSON file"), err

@@ -29,6 +29,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("dsteleop.app.cli.run", "run the loop without a browser (headless or live); record"),
     "replay": ("dsteleop.app.cli.replay", "replay recorded sessions or videos headless; metrics"),
     "sim": ("dsteleop.app.cli.sim", "reproduce the paper's simulation study (S vs DS); report"),
+    "robot": (
+        "dsteleop.app.cli.robot",
+        "check a robot description: task placement, reach, steady state, grasp (robot check)",
+    ),
     "robot-sim": (
         "dsteleop.app.cli.robot_sim",
         "run the PyBullet robot at the far end of a Zenoh link (ROS 2-compatible)",

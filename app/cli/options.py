@@ -33,7 +33,6 @@ Bounds that are not the loop's own domain, and why:
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import math
 from dataclasses import dataclass
@@ -42,6 +41,7 @@ from typing import Any
 
 from dsteleop.app import outputs, sources
 from dsteleop.app.compose.options import LoopOptions, RobotSpec
+from dsteleop.app.jsonable import read_json
 from dsteleop.app.loop import LoopConfig, LostPolicy
 from dsteleop.app.outpaths import check_output_file, output_dir, output_file
 from dsteleop.arbitration import ArbitrationConfig, Mode, registered
@@ -81,18 +81,14 @@ def add_config_options(parser: argparse.ArgumentParser) -> None:
 
 def read_config_file(
     path: Path | None, option: str = "--config", sections: tuple[str, ...] = ()
-) -> tuple[dict[str, Any], dict[str, Any]]:
-    """(arbitration fields, loop fields) of a --config file (module docstring); `option`
-    names the option the file came from in the one-line errors; `sections` are more sections
-    the command reads itself (the study's per-mode `modes`), passed over here."""
+) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
+    """(arbitration fields, loop fields, the `sections`) of a --config file (module
+    docstring), read once; `option` names the option the file came from in the one-line
+    errors; `sections` are more sections the command reads itself (the study's per-mode
+    `modes`), handed back as the file has them."""
     if path is None:
-        return {}, {}
-    try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(f"{option}: file not found: {path}") from None
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{option} {path}: not a JSON file ({exc})") from None
+        return {}, {}, {}
+    data = read_json(path, option)
     if not isinstance(data, dict):
         raise ConfigError(f"{option} {path}: expected a JSON object")
     if "arbitration" in data or "loop" in data:
@@ -106,8 +102,8 @@ def read_config_file(
         arb, loop = data.get("arbitration", {}), data.get("loop", {})
         if not isinstance(arb, dict) or not isinstance(loop, dict):
             raise ConfigError(f"{option} {path}: sections must be JSON objects")
-        return dict(arb), dict(loop)
-    return dict(data), {}
+        return dict(arb), dict(loop), {k: data[k] for k in sections if k in data}
+    return dict(data), {}, {}
 
 
 def parse_params(items: list[str]) -> dict[str, Any]:
@@ -145,11 +141,16 @@ class Configuration:
         arbitration: the arbitration configuration.
         loop: the file's loop section over the defaults, with `arbitration`.
         loop_fields: the loop fields the file set (a default it repeats counts as set).
+        file_fields: the file's arbitration fields as written (before `--param`).
+        sections: the file's sections that the command reads itself (`configuration`'s
+            `sections`), as written.
     """
 
     arbitration: ArbitrationConfig
     loop: LoopConfig
     loop_fields: frozenset[str]
+    file_fields: dict[str, Any]
+    sections: dict[str, Any]
 
 
 def arbitration_config(args: argparse.Namespace) -> ArbitrationConfig:
@@ -164,7 +165,7 @@ def configuration(
     """The configuration of the file `path` (`read_config_file`; None: the defaults) with
     the `--param` items `params` on top; `option` names the file's option in the errors;
     `sections` as `read_config_file`'s."""
-    arb, loop = read_config_file(path, option, sections)
+    arb, loop, extra = read_config_file(path, option, sections)
     try:
         cfg = ArbitrationConfig.from_dict({**arb, **parse_params(params)})
         loop_cfg = LoopConfig.from_dict(loop, arbitration=cfg)
@@ -175,7 +176,7 @@ def configuration(
         if option == "--config":
             raise
         raise ConfigError(f"{option} {path}: {exc}") from None
-    return Configuration(cfg, loop_cfg, frozenset(loop))
+    return Configuration(cfg, loop_cfg, frozenset(loop), dict(arb), extra)
 
 
 def config_from_file(
@@ -402,9 +403,15 @@ def check_robot(robot: str) -> RobotSpec:
     """`--robot NAME|FILE` names a valid robot description (read and checked against its
     URDF now, before anything runs or records); `--robot zenoh:CONFIG` a valid link
     configuration file and its robot's description: the robot, read once
-    (`RobotSpec.parse`, which raises the one-line errors).
+    (`RobotSpec.parse`, which raises the one-line errors). Its arm must reach every pose of
+    the task where the scene stands for it (`robot.reach.require_reachable`: else one line
+    naming the pose, the error and the fix).
     """
-    return RobotSpec.parse(robot)
+    from dsteleop.robot.reach import require_reachable
+
+    spec = RobotSpec.parse(robot)
+    require_reachable(spec.description)
+    return spec
 
 
 def check_loop_bounds(

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from dsteleop.app.cli.options import add_config_options, config_from_file, parse_params
+from dsteleop.app.cli.options import add_config_options, configuration, parse_params
 from dsteleop.app.cli.world_options import add_world_arguments, world_overrides
 from dsteleop.app.outpaths import created_dir, output_dir
 from dsteleop.app.tasks.progress import Progress
@@ -285,17 +285,13 @@ def study_configuration(
     `modes` section, `{"MODE": {arbitration fields}, ...}` (scripts/tune_sweep.py writes it
     for modes tuned apart that share fields), each over the file's arbitration, `--param` on
     top of each."""
-    arb = config_from_file(path, params, option, sections=("modes",))
+    file = configuration(path, params, option, sections=("modes",))
     if path is None:
-        return arb, ()
-    try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{option} {path}: {exc}") from None
-    section = data.get("modes", {}) if isinstance(data, dict) else {}
+        return file.arbitration, ()
+    section = file.sections.get("modes", {})
     if not isinstance(section, dict) or not all(isinstance(v, dict) for v in section.values()):
         raise ConfigError(f"{option} {path}: `modes` must map each mode to its fields")
-    base = data.get("arbitration", {}) if "arbitration" in data else {}
+    base = file.file_fields
     given = parse_params(params)
     own: list[tuple[Mode, ArbitrationConfig]] = []
     for name, fields in section.items():
@@ -304,7 +300,7 @@ def study_configuration(
             own.append((mode, ArbitrationConfig.from_dict({**base, **fields, **given})))
         except (ConfigError, TypeError) as exc:
             raise ConfigError(f"{option} {path}: modes.{name}: {exc}") from None
-    return arb, tuple(own)
+    return file.arbitration, tuple(own)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -20,6 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from dsteleop.app import outputs as output_registry
 from dsteleop.app import sources
 from dsteleop.app.compose.options import LoopOptions
@@ -31,7 +33,9 @@ from dsteleop.app.plants.kitchen import KitchenTask, simulated_kitchen
 from dsteleop.app.ports import HandInput, Observer, Output, Robot, Task
 from dsteleop.app.session.writer import HistoryFile
 from dsteleop.app.sources import SourceContext
+from dsteleop.arbitration.se3 import so3_exp, so3_log
 from dsteleop.errors import ConfigError
+from dsteleop.robot.placement import Placement
 from dsteleop.tracking.mapping import MappingConfig, WorkspaceMapping
 from dsteleop.tracking.pipeline import HandTracker, TrackingStream
 from dsteleop.tracking.sources import (
@@ -82,6 +86,31 @@ def _close_all(outputs: list[Output]) -> None:
         outputs[0].close()
     finally:
         _close_all(outputs[1:])
+
+
+def placed_mapping(mapping: MappingConfig, placement: Placement) -> MappingConfig:
+    """The camera -> robot mapping for a scene stood at `placement` (`robot.placement`):
+    the neutral palm pose and the workspace box (its corners' bounding box) move and
+    turn with the scene, so the operator's hand still covers the holder and the bin. The
+    identity (the shipped robots) leaves the mapping as it is."""
+    if placement.identity:
+        return mapping
+    lo, hi = np.array(mapping.workspace_min_m), np.array(mapping.workspace_max_m)
+    corners = np.array([[(lo, hi)[(k >> a) & 1][a] for a in range(3)] for k in range(8)])
+    placed = np.array([placement.point(c) for c in corners])
+
+    def vec(a: Any) -> tuple[float, float, float]:
+        return (float(a[0]), float(a[1]), float(a[2]))
+
+    return dataclasses.replace(
+        mapping,
+        neutral_position_m=vec(placement.point(np.array(mapping.neutral_position_m))),
+        neutral_rotvec_rad=vec(
+            so3_log(placement.rotation(so3_exp(np.array(mapping.neutral_rotvec_rad))))
+        ),
+        workspace_min_m=vec(placed.min(0)),
+        workspace_max_m=vec(placed.max(0)),
+    )
 
 
 def hand_mapping(fields: dict[str, Any]) -> MappingConfig | None:
@@ -168,6 +197,8 @@ def build(
             desc.name,
             options.robot.link_file,
         )
+    if isinstance(task, KitchenTask):  # the hand's neutral and box stand with the scene
+        mapping = placed_mapping(mapping, task.env.placement)
     opened_outputs: dict[str, Output] = {}
     try:
         task.reset()

@@ -28,6 +28,7 @@ import pyarrow as pa  # type: ignore[import-untyped]
 import pyarrow.parquet as pq  # type: ignore[import-untyped]
 from numpy.typing import NDArray
 
+from dsteleop.app.jsonable import read_json
 from dsteleop.app.lerobot import layout as L  # noqa: N812  (the layout, named once)
 from dsteleop.app.session.episodes import Episode
 from dsteleop.app.session.reader import Session
@@ -122,10 +123,7 @@ def read_info(root: Path) -> dict[str, Any]:
         InputError: it is missing, unreadable, not v3.0, or not dsteleop's.
     """
     path = Path(root) / L.INFO
-    try:
-        info = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: unreadable dataset metadata ({exc})") from None
+    info = read_json(path, "dataset metadata")
     if not isinstance(info, dict) or info.get("codebase_version") != L.CODEBASE_VERSION:
         version = info.get("codebase_version") if isinstance(info, dict) else None
         raise InputError(f"{root}: a LeRobot dataset of version {version!r}; this reads v3.0")

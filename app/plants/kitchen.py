@@ -42,6 +42,7 @@ from dsteleop.robot.arm import CONTROL_DT_S, RobotConfig
 from dsteleop.robot.description import RobotDescription, load_description
 from dsteleop.robot.env import EnvConfig, KitchenEnv
 from dsteleop.robot.perception import PerceptionError
+from dsteleop.robot.placement import Placement
 from dsteleop.robot.scene import SceneGeometry
 from dsteleop.robot.task import INFER, Candidates, Phase
 from dsteleop.robot.world import UTENSIL_NAMES
@@ -68,6 +69,8 @@ class KitchenTask:
         infer: the robot is not told its utensil (module docstring).
         perception: with `infer`, how the robot perceives the candidates (None:
             `PerceptionError()`, or isotropic when `goal_noise_m` is given).
+        placement: where the scene stands in the robot's base frame (`robot.placement`;
+            None: the description's, `robot.reach.task_placement`; a replay: the recorded).
     """
 
     def __init__(
@@ -83,8 +86,9 @@ class KitchenTask:
         twin: bool = True,
         infer: bool = False,
         perception: PerceptionError | None = None,
+        placement: Placement | None = None,
     ) -> None:
-        cfg = EnvConfig(description=description or load_description("iiwa"))
+        cfg = EnvConfig(description=description or load_description("iiwa"), placement=placement)
         if control_dt_s is not None:
             cfg = dataclasses.replace(cfg, robot=RobotConfig.for_period(control_dt_s))
         task = cfg.task
@@ -184,6 +188,8 @@ class KitchenTask:
             "goals": [INFER, *UTENSIL_NAMES],
             "control_dt_s": self.config.robot.control_dt_s,
             "robot": self.config.description.name,
+            # Where the scene stood in the robot's base frame (a replay stands it there too).
+            "placement": self.env.placement.to_dict(),
             "judged": "twin" if self.twin else "same world",
         }
 
@@ -237,5 +243,9 @@ def task_options_from_meta(meta: dict[str, Any]) -> dict[str, Any]:
             None
             if meta.get("perception") is None
             else PerceptionError.from_dict(meta["perception"])
+        ),
+        # Sessions before placements stood the scene where the description does.
+        "placement": (
+            None if meta.get("placement") is None else Placement.from_dict(meta["placement"])
         ),
     }

@@ -129,6 +129,11 @@ def simulated_world(
             "re-track its video (--retrack)"
         )
     options = task_options_from_meta(meta.get("plant", {}))
+    if robot != "simulated":  # another robot stands the scene where it reaches it
+        options["placement"] = None
+    from dsteleop.robot.reach import require_reachable
+
+    require_reachable(desc, placement=options["placement"])  # else one line, exit 2
     return simulated_kitchen(desc, export_scene=export_scene, **options)
 
 

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from dsteleop.app.jsonable import read_json
 from dsteleop.app.session.episodes import Episode, episode_records, split
 from dsteleop.app.session.schema import READABLE, SCHEMA, TickRecord, decode
 from dsteleop.app.session.video import FRAMES, VIDEO
@@ -163,10 +164,7 @@ def read_session(folder: Path, warn_truncated: bool = True) -> Session:
                 "which cannot be replayed"
             )
         raise InputError(f"{folder} is not a dsteleop session (no {META})")
-    try:
-        meta = json.loads(meta_path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{meta_path}: unreadable metadata ({exc})") from exc
+    meta = read_json(meta_path, "session metadata")
     if not isinstance(meta, dict) or meta.get("schema") not in READABLE:
         schema = meta.get("schema") if isinstance(meta, dict) else None
         raise InputError(

@@ -49,6 +49,7 @@ from typing import Any
 
 import numpy as np
 
+from dsteleop.app.jsonable import read_json
 from dsteleop.app.operator.world import Impairments
 from dsteleop.app.study import sweep_report
 from dsteleop.app.study.batch import run_chunk
@@ -416,10 +417,9 @@ def load_done(
         path = cells_dir(out) / f"{name}.json"
         if not path.exists():
             continue
-        try:
-            data = json.loads(path.read_text())
-        except (OSError, ValueError) as exc:
-            raise InputError(f"--resume: cannot read {path}: {exc}") from None
+        data = read_json(path, "--resume: a finished cell")
+        if not isinstance(data, dict):
+            raise InputError(f"--resume: {path} is not a finished cell (not a JSON object)")
         if data.get("settings") != settings(cell_study(cfg, name, configs)):
             raise InputError(
                 f"--resume: {path} was computed with other settings (trajectories, seed, modes, "
