@@ -181,22 +181,23 @@ class FilterState:
 
     @property
     def alpha_window(self) -> Array:
-        """DS's alpha window (W, M, 6 + F), oldest tick first (`modes.ds.Windows`)."""
+        """DS's alpha window (W, M', 6 + F), oldest tick first (`modes.ds.Windows`: M' = M,
+        or in a batch that mixes modes DS's own rows, `Windows.rows`)."""
         return self.of(Mode.DS).alpha_window
 
     @property
     def B_window(self) -> Array:
-        """DS's B window (W, M, 6 + F), oldest tick first."""
+        """DS's B window (W, M', 6 + F), oldest tick first."""
         return self.of(Mode.DS).B_window
 
     @property
     def alpha_rows(self) -> tuple[Array, ...]:
-        """DS's alpha window's W rows (M, 6 + F), oldest first."""
+        """DS's alpha window's W rows (M', 6 + F), oldest first."""
         return tuple(self.alpha_window)
 
     @property
     def B_rows(self) -> tuple[Array, ...]:
-        """DS's B window's W rows (M, 6 + F), oldest first."""
+        """DS's B window's W rows (M', 6 + F), oldest first."""
         return tuple(self.B_window)
 
     def select(self, keep: NDArray[np.bool_]) -> FilterState:
@@ -230,8 +231,11 @@ class RowModes:
     @functools.cached_property
     def index(self) -> tuple[tuple[Mode, NDArray[np.intp]], ...]:
         """(mode, indices of its rows) for each mode present (computed once: a study steps
-        the same rows many ticks)."""
-        return tuple((m, np.flatnonzero(mask)) for m, mask in self.groups())
+        the same rows many ticks; read-only: a mode's state may keep them)."""
+        out = tuple((m, np.flatnonzero(mask)) for m, mask in self.groups())
+        for _, rows in out:
+            rows.flags.writeable = False
+        return out
 
     @functools.cached_property
     def reads_allocation(self) -> Array:
@@ -425,14 +429,18 @@ def _confidence_rows(c: Array | float | None, batch: tuple[int, ...], D: int) ->
     if c is None:
         return _ones(M, D)
     a = np.asarray(c, dtype=np.float64)
-    try:
-        a = np.broadcast_to(a, (*batch, *tail)).reshape(M, *tail)
+    try:  # a confidence of the tick's shape (the study's, every tick) is only reshaped
+        if a.shape != (*batch, *tail):
+            a = np.broadcast_to(a, (*batch, *tail))
+        a = a.reshape(M, *tail)  # a new array object (a view where it can): never the caller's
     except ValueError:
         what = "confidence" if D else "confidence_joint"
         raise ConfigError(f"{what} of shape {a.shape} for a tick of batch {batch}") from None
-    if not ((a >= 0.0) & (a <= 1.0)).all():  # NaN fails too
+    # Two reductions, no temporaries (checked every tick); NaN fails too (min/max keep it).
+    if a.size and not (a.min() >= 0.0 and a.max() <= 1.0):
         what = "confidence" if D else "confidence_joint"
         raise ConfigError(f"{what} must be in [0, 1]")
+    a.flags.writeable = False
     return a
 
 

@@ -277,10 +277,48 @@ class GoalBelief:
         """The poses (batch (n,)) of candidate `index[r]` for each row r: the robot's X_goal."""
         goals: HandState = self.__dict__["_goals"]
         idx = np.asarray(index, dtype=np.intp)
-        rows = np.arange(idx.shape[0]) if goals.batch[0] > 1 else np.zeros(idx.shape[0], np.intp)
-        return HandState(
-            goals.position[rows, idx], goals.rotation[rows, idx], goals.openness[rows, idx]
-        )
+        # Row r's candidate k is row r K + k of the flattened goals (one take per array).
+        flat = idx + np.arange(idx.shape[0]) * self.K if goals.batch[0] > 1 else idx
+        gp, gR, gg = self.__dict__["_flat_goals"]
+        return HandState(gp.take(flat, 0), gR.take(flat, 0), gg.take(flat, 0))
+
+    def take(self, rows: NDArray[np.bool_] | NDArray[np.intp]) -> GoalBelief:
+        """The model of the rows `rows` of candidates given one set per row (batch (n, K)),
+        its tables taken from this one's (each row's are computed from its own candidates
+        alone, so they are the ones a model of those rows computes)."""
+        if len(self.goals.batch) != 2:
+            raise ConfigError("belief: take needs candidates given one set per row (n, K)")
+        d = self.__dict__
+        sigma = np.asarray(self.sigma)
+        prior = self.prior
+        if prior is not None and np.ndim(prior) == 2:
+            prior = np.asarray(prior)[rows]
+        out = object.__new__(GoalBelief)
+        fields = {
+            "goals": self.goals.take(rows),
+            "sigma": sigma[rows] if sigma.ndim == 3 else sigma,
+            "params": self.params,
+            "prior": prior,
+            "names": self.names,
+        }
+        K = self.K
+        gp, gR, gg = d["_flat_goals"]
+        n = gp.shape[0] // K
+        picked = (a.reshape(n, K, *a.shape[1:])[rows] for a in (gp, gR, gg))
+        flat = tuple(np.ascontiguousarray(a.reshape(a.shape[0] * K, *a.shape[2:])) for a in picked)
+        own_prior = d["_prior"]
+        derived = {
+            "_scale": d["_scale"],
+            "_prior": own_prior[rows] if own_prior.ndim == 2 else own_prior,
+            "_goals": d["_goals"].take(rows),
+            "_flat_goals": flat,
+            "_sigma2_over_s2_sum": np.ascontiguousarray(d["_sigma2_over_s2_sum"][rows]),
+            "_table": np.ascontiguousarray(d["_table"][rows]),
+            "_joint_table": np.ascontiguousarray(d["_joint_table"][rows]),
+        }
+        for name, value in {**fields, **derived}.items():
+            object.__setattr__(out, name, value)
+        return out
 
 
 @kernel

@@ -285,13 +285,19 @@ def derived_values(desc: RobotDescription) -> dict[str, Any]:
 
 
 def measure_steady(
-    desc: RobotDescription, placement: Placement, config: RobotConfig | None = None
+    desc: RobotDescription,
+    placement: Placement,
+    config: RobotConfig | None = None,
+    goals: dict[str, tuple[Array, Array]] | None = None,
 ) -> list[Steady]:
-    """The palm's steady-state error at `steady_goals` (module docstring)."""
+    """The palm's steady-state error at `steady_goals` (module docstring), or at `goals`
+    (name -> (p, R), base frame)."""
     out = []
     chain = arm_chain(desc)
-    for name, p_goal in steady_goals(placement).items():
-        R_goal = placement.rotation(R_PALM_DOWN)
+    if goals is None:
+        R_down = placement.rotation(R_PALM_DOWN)
+        goals = {n: (p, R_down) for n, p in steady_goals(placement).items()}
+    for name, (p_goal, R_goal) in goals.items():
         if not reach_pose(chain, desc, name, (p_goal, R_goal), config).reachable:
             out.append(Steady(name, math.nan, math.nan, False, tried=False))
             continue

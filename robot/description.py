@@ -5,12 +5,14 @@ A description names the robot's URDF (from the installed `pybullet_data` or
 mounted on the arm (a second URDF and the fixed joint that joins them), the arm's joints and
 rest posture, the palm link and the palm frame in it, the fingers (each finger: its joints,
 each joint's open and closed position, the motor effort, and the human fingers whose
-openness it follows), the home pose and the velocity and workspace limits. `robot/robots/`
-ships `iiwa.toml` (the KUKA iiwa with the project's four-finger hand), `panda.toml` (the
-Franka Panda of `pybullet_data` with its two-finger gripper: one finger, `gripper`, whose
-openness drives both jaws), `ur5.toml` (the UR5 with the project's hand), `xarm6.toml` (the
-xArm 6 with its linkage gripper: one drive joint and its mimics) and `so101.toml` (LeRobot's
-SO-101, which cannot reach the kitchen task).
+openness it follows), the home pose and the velocity and workspace limits, and optionally
+where the task's scene stands in its base frame (`[task]`, `robot.placement`; else computed,
+`robot.reach`) and whether its arm holds its own weight (`[arm] gravity_compensation`, default
+true). `robot/robots/` ships `iiwa.toml` (the KUKA iiwa with the project's four-finger hand),
+`panda.toml` (the Franka Panda of `pybullet_data` with its two-finger gripper: one finger,
+`gripper`, whose openness drives both jaws), `ur5.toml` (the UR5 with the project's hand),
+`xarm6.toml` (the xArm 6 with its linkage gripper: one drive joint and its mimics) and
+`so101.toml` (LeRobot's SO-101, which cannot reach the kitchen task).
 
 `load_description(NAME_OR_FILE)` reads and validates one: a shipped name, or a path to a
 `.toml` file. Everything wrong with it (a malformed file, a missing field, a number outside

@@ -39,6 +39,7 @@ from dsteleop.robot.kinematics import ArmChain
 from dsteleop.robot.model import LoadedRobot, load_robot, palm_tip_joints, robot_urdf_text
 from dsteleop.robot.perception import PerceptionError
 from dsteleop.robot.placement import Placement
+from dsteleop.robot.reach import PLACE_POSITION_M, task_placement
 from dsteleop.robot.scene import SceneGeometry, ScenePoses, VisualGeometry, VisualKind
 from dsteleop.robot.task import (
     Phase,
@@ -95,7 +96,7 @@ class EnvConfig:
 
     robot: RobotConfig = field(default_factory=RobotConfig)
     task: TaskConfig = field(default_factory=TaskConfig)
-    place_position_m: tuple[float, float, float] = (BIN_CENTER_M[0], BIN_CENTER_M[1], 0.45)
+    place_position_m: tuple[float, float, float] = PLACE_POSITION_M
     settle_s: float = 1.0
     description: RobotDescription = field(default_factory=lambda: load_description("iiwa"))
     infer: bool = False
@@ -162,8 +163,6 @@ class KitchenEnv:
     def _placement_of(config: EnvConfig) -> Placement:
         if config.placement is not None:
             return config.placement
-        from dsteleop.robot.reach import task_placement
-
         return task_placement(config.description, config.robot)
 
     # ------------------------------------------------------------------ lifecycle
@@ -442,7 +441,8 @@ class KitchenEnv:
         )
         self._pose_links = [i for i in sorted(loaded.links.values()) if i >= 0]
         self._pose_bodies = [b for _, b in body_frames]
-        return SceneGeometry(tuple(frames), tuple(static), tuple(visuals))
+        fx, fy, fz = (float(v) for v in self.placement.point(np.array(SceneGeometry.focus_m)))
+        return SceneGeometry(tuple(frames), tuple(static), tuple(visuals), (fx, fy, fz))
 
     def poses(self) -> ScenePoses:
         """World pose of every frame of `geometry()` now (wxyz quaternions)."""

@@ -57,11 +57,14 @@ class SceneGeometry:
         frames: frame names; `ScenePoses` rows follow this order.
         static: per frame, whether it never moves (table, holder, bin, floor, robot base).
         visuals: every visual shape.
+        focus_m: the point a view looks at first [m]: the task's table between the holder
+            and the bin, where the robot's placement stands it (`robot.placement`).
     """
 
     frames: tuple[str, ...]
     static: tuple[bool, ...]
     visuals: tuple[VisualGeometry, ...]
+    focus_m: tuple[float, float, float] = (0.55, 0.0, 0.1)
 
     def to_dict(self) -> dict[str, object]:
         """JSON-friendly form."""
@@ -69,6 +72,7 @@ class SceneGeometry:
             "frames": list(self.frames),
             "static": list(self.static),
             "visuals": [v.__dict__ | {"size_m": list(v.size_m)} for v in self.visuals],
+            "focus_m": list(self.focus_m),
         }
 
 

@@ -543,6 +543,44 @@ def test_a_batch_that_mixes_modes_equals_one_batch_per_mode() -> None:
         mixed.step(fs_mixed, stack_inputs(inputs), kept)
 
 
+def test_a_mixed_batch_keeps_windows_for_its_ds_rows_only() -> None:
+    """In a batch that mixes modes, DS's windows are its own rows' (a tick copies those, not
+    the whole batch's); selecting rows maps them into the kept batch, and the kept rows step
+    as a batch of their own mode does."""
+    rng = np.random.default_rng(12)
+    cfg = ArbitrationConfig(window=3)
+    modes = [Mode.S, Mode.DS, Mode.MANUAL, Mode.DS, Mode.DS, Mode.S]
+    mixed = make_arbiter(Mode.DS, cfg)
+    alone = make_arbiter(Mode.DS, cfg)
+    rows = RowModes.of(modes)
+    fs_mixed = mixed.initial_state(10, (len(modes),))
+    ds_rows = [i for i, m in enumerate(modes) if m is Mode.DS]
+    fs_alone = [alone.initial_state(10) for _ in ds_rows]
+
+    def tick(fs: FilterState, which: RowModes, n: int) -> tuple[FilterState, ArbitrationStep]:
+        inputs = [input_from_states([random_state(rng, (), 4) for _ in range(7)], 0.05)
+                  for _ in range(n)]  # fmt: skip
+        fs, step = mixed.step(fs, stack_inputs(inputs), which)
+        ds = [i for i, c in enumerate(which.codes) if which.modes[c] is Mode.DS]
+        for k, i in enumerate(ds):
+            fs_alone[k], r = alone.step(fs_alone[k], inputs[i])
+            assert_step_matches(r, step, (i,))
+        return fs, step
+
+    for _ in range(4):
+        fs_mixed, _ = tick(fs_mixed, rows, len(modes))
+    own = fs_mixed.of(Mode.DS)
+    np.testing.assert_array_equal(own.rows, ds_rows)
+    assert fs_mixed.alpha_window.shape == fs_mixed.B_window.shape == (3, len(ds_rows), 10)
+    keep = np.array([True, True, False, False, True, True])  # drops DS row 3
+    part = fs_mixed.select(keep)
+    np.testing.assert_array_equal(part.of(Mode.DS).rows, [1, 2])
+    np.testing.assert_array_equal(part.alpha_window, fs_mixed.alpha_window[:, [0, 2]])
+    del fs_alone[1]
+    for _ in range(3):
+        part, _ = tick(part, rows.select(keep), int(keep.sum()))
+
+
 @pytest.mark.parametrize("mode", list(Mode))
 def test_closed_loop_single_and_batched_agree(mode: Mode) -> None:
     """X_next fed back as X_current and as the reference X_ref for 40 ticks, with a history

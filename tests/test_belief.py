@@ -174,6 +174,42 @@ def test_candidates_per_row_equal_shared_candidates() -> None:
     )
 
 
+def test_the_model_of_some_rows_is_the_model_built_on_those_rows() -> None:
+    """`GoalBelief.take` (the study drops the rows whose trial ended) selects the tables it
+    computed; a model built on the kept rows alone gives the same numbers to the last bit."""
+    rng = np.random.default_rng(11)
+    n, K = 6, 3
+    p = np.stack([_candidates().position + rng.normal(0.0, 0.01, (K, 3)) for _ in range(n)])
+    R = so3_exp(rng.normal(0.0, 0.2, (n, K, 3)))
+    goals = HandState(p, R, rng.uniform(0.0, 1.0, (n, K, F)))
+    sigma = rng.uniform(0.001, 0.02, (n, K, D))
+    prior = rng.uniform(0.5, 1.5, (n, K))
+    model = GoalBelief(goals, sigma, BeliefParams(beta=2.0), prior=prior)
+    keep = np.array([True, False, True, True, False, True])
+    taken = model.take(keep)
+    built = GoalBelief(goals.take(keep), sigma[keep], BeliefParams(beta=2.0), prior=prior[keep])
+    m = int(keep.sum())
+    X0 = HandState(p[keep, 0], R[keep, 1], rng.uniform(0.0, 1.0, (m, F)))
+    X1 = HandState(p[keep, 2] + 0.01, R[keep, 0], rng.uniform(0.0, 1.0, (m, F)))
+    np.testing.assert_array_equal(taken.agreement, built.agreement)
+    np.testing.assert_array_equal(taken.cost_to_go(X1), built.cost_to_go(X1))
+    b_taken = taken.update(taken.initial(m), X1, X0)
+    b_built = built.update(built.initial(m), X1, X0)
+    np.testing.assert_array_equal(b_taken, b_built)
+    c_taken, c_built = taken.confidence(b_taken), built.confidence(b_built)
+    for a, b in zip(c_taken, c_built, strict=True):
+        np.testing.assert_array_equal(a, b)
+    kept, rows = goals.take(keep), (np.arange(m), c_built.map_index)
+    picked = HandState(kept.position[rows], kept.rotation[rows], kept.openness[rows])
+    for G1, G2 in ((taken.goal_of(c_taken.map_index), built.goal_of(c_built.map_index)),
+                   (taken.goal_of(c_taken.map_index), picked)):  # fmt: skip
+        np.testing.assert_array_equal(G1.position, G2.position)
+        np.testing.assert_array_equal(G1.rotation, G2.rotation)
+        np.testing.assert_array_equal(G1.openness, G2.openness)
+    with pytest.raises(ConfigError, match="one set per row"):
+        _belief().take(np.array([True]))
+
+
 # --- the confidence per dimension ---------------------------------------------------------------
 
 

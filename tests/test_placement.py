@@ -75,6 +75,7 @@ def test_the_shipped_robots_stand_the_scene_where_it_always_was() -> None:
             hp, hq = pb.getBasePositionAndOrientation(env.world.holder, physicsClientId=env.client)
             assert list(hp) == [HOLDER_CENTER_M[0], HOLDER_CENTER_M[1], 0.0]
             assert list(hq) == [0.0, 0.0, 0.0, 1.0]
+            assert env.geometry().focus_m == (0.55, 0.0, 0.1)
 
 
 def test_a_task_table_stands_the_whole_scene_there_and_the_task_is_done_there(
@@ -101,6 +102,10 @@ def test_a_task_table_stands_the_whole_scene_there_and_the_task_is_done_there(
         p_place, R_place = env.task.place_true
         np.testing.assert_allclose(p_place, placement.point([*BIN_CENTER_M, 0.45]), atol=1e-12)
         np.testing.assert_allclose(R_place, placement.R @ R_PALM_DOWN, atol=1e-12)
+        # the page looks at the placed table; the floor is drawn where it is
+        np.testing.assert_allclose(env.geometry().focus_m, placement.point([0.55, 0.0, 0.1]))
+        floor = env.geometry().frames.index("floor")
+        np.testing.assert_allclose(env.poses().positions_m[floor], placement.point([0, 0, -0.75]))
         # the grasp goals sit on the placed utensils, as the reach check computes them
         poses = scene_poses(desc, placement)
         p_pick, _ = env.task.pick_true

@@ -8,6 +8,7 @@ import math
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -548,3 +549,17 @@ def test_study_processes_keep_the_memory_they_free() -> None:
     if platform.libc_ver()[0] != "glibc":
         pytest.skip("mallopt is glibc's")
     assert keep_freed_memory() is True
+
+
+def test_study_processes_fault_their_memory_in_small_pages() -> None:
+    import importlib
+
+    from dsteleop.app.study.run import small_pages
+
+    core: Any = importlib.import_module("numpy._core.multiarray")  # the switch has no stubs
+    before = core._get_madvise_hugepage()
+    try:
+        assert small_pages() is True
+        assert core._get_madvise_hugepage() is False
+    finally:
+        core._set_madvise_hugepage(before)

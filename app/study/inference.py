@@ -116,7 +116,6 @@ class RowBeliefs:
     """
 
     def __init__(self, goals: HandState, sigma: Array, params: BeliefParams, ticks: int) -> None:
-        self._goals, self._sigma, self._params = goals, sigma, params
         self.model = GoalBelief(goals, sigma, params)
         J = goals.batch[0]
         self.belief = self.model.initial(J)
@@ -148,9 +147,7 @@ class RowBeliefs:
 
     def keep(self, keep: NDArray[np.bool_]) -> None:
         """Only the current rows `keep` go on."""
-        self._goals = self._goals.take(keep)
-        self._sigma = self._sigma[keep]
-        self.model = GoalBelief(self._goals, self._sigma, self._params)
+        self.model = self.model.take(keep)
         self.belief = self.belief[keep]
         self.ids = self.ids[keep]
         self._now = Confidence(

@@ -360,8 +360,10 @@ class Viewer:
     def _build(self, utensils: Sequence[str], sliders: Sequence[Slider]) -> None:
         gui = self.server.gui
         gui.configure_theme(control_width="large", dark_mode=False, show_logo=False)
-        self.server.initial_camera.position = (-0.75, -1.25, 1.0)
-        self.server.initial_camera.look_at = (0.55, 0.0, 0.1)
+        # from behind the base's left, looking at the table where the scene stands
+        fx, fy, fz = (0.55, 0.0, 0.1) if self._geometry is None else self._geometry.focus_m
+        self.server.initial_camera.position = (fx - 1.3, fy - 1.25, fz + 0.9)
+        self.server.initial_camera.look_at = (fx, fy, fz)
         self.scene = SceneView(self.server.scene, self._geometry, self.config.trail_points)
 
         gui.add_html(style_html())

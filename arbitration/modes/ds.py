@@ -11,13 +11,14 @@ same lever as the scalar baseline's `cap` (alpha = cap * eq (3)), per group: a b
 DS tuned with equal levers (issue 31). At their defaults (1.0) DS is the paper's eq (8) to
 the last bit (x * 1.0 == x). `DS.cap=X` is a shorthand that sets all three.
 
-The windows are DS's own filter state (`Windows`), over the rows of the batch (rows of other
-modes in a mixed batch keep theirs unchanged); they restart, with the segment, at each new
-goal (`Arbiter.initial_state`). DS reports the filtered B. Its parameters are the shared ones
-its alpha depends on (kappa of eq (5), p, q, b of eq (7), `window`), fields of
-`ArbitrationConfig`, and its own caps (`DS.cap_translation`, `DS.cap_rotation`,
-`DS.cap_fingers`); its default tuning space searches them, and the translation and rotation
-caps over the scalar's cap range (the planar study has no fingers).
+The windows are DS's own filter state (`Windows`), over the rows of the batch that run DS:
+every row, or in a batch that mixes modes its own rows only (the rows of other modes have none
+to keep; a tick copies the windows of DS's rows, not of the whole batch); they restart, with
+the segment, at each new goal (`Arbiter.initial_state`). DS reports the filtered B. Its
+parameters are the shared ones its alpha depends on (kappa of eq (5), p, q, b of eq (7),
+`window`), fields of `ArbitrationConfig`, and its own caps (`DS.cap_translation`,
+`DS.cap_rotation`, `DS.cap_fingers`); its default tuning space searches them, and the
+translation and rotation caps over the scalar's cap range (the planar study has no fingers).
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from numpy.typing import NDArray
 from dsteleop.arbitration.allocation import ds_alpha_of
 from dsteleop.arbitration.jit import kernel
 from dsteleop.arbitration.modes.base import Array, ModeSpec, Quantities, Rows, check_range
+from dsteleop.errors import ContractError
 
 if TYPE_CHECKING:
     from dsteleop.arbitration.config import ArbitrationConfig
@@ -71,9 +73,10 @@ def caps(params: DSParams, dims: int) -> Array:
 
 @dataclass(frozen=True)
 class Windows:
-    """DS's moving windows over the last W ticks, for a batch of M rows.
+    """DS's moving windows over the last W ticks, for M' rows of a batch of M: every row
+    (`rows` None, M' = M) or the batch rows `rows` (a batch that mixes modes: DS's own).
 
-    Each window is an array (W, M, 6 + F), oldest tick first, read-only: a tick makes new
+    Each window is an array (W, M', 6 + F), oldest tick first, read-only: a tick makes new
     windows (the last W - 1 rows and its own), so an earlier state stays valid.
 
     Attributes:
@@ -81,17 +84,42 @@ class Windows:
             first tick (the mean divides by min(count, W) filled samples).
         B_window: raw willingness samples (eq 7); the window starts full of ones.
         count: ticks DS has stepped these windows.
+        rows: the batch rows the windows' rows are of, ascending (None: row m of the batch).
     """
 
     alpha_window: Array
     B_window: Array
     count: int
+    rows: NDArray[np.intp] | None = None
 
     def select(self, keep: NDArray[np.bool_]) -> Windows:
-        """The windows of the batch rows `keep`."""
-        a, b = self.alpha_window[:, keep], self.B_window[:, keep]
+        """The windows of the batch rows `keep` (a mask over the batch)."""
+        if self.rows is None:
+            mine, rows = keep, None
+        else:  # its rows that stay, numbered in the kept batch
+            mine = keep[self.rows]
+            rows = (np.cumsum(keep) - 1)[self.rows[mine]]
+        a, b = self.alpha_window[:, mine], self.B_window[:, mine]
         a.flags.writeable = b.flags.writeable = False
-        return Windows(a, b, self.count)
+        return Windows(a, b, self.count, rows)
+
+    def of_rows(self, rows: Rows) -> Windows:
+        """The windows of the batch rows `rows` (ascending): these, or their rows taken."""
+        if self.rows is None:
+            if rows.shape[0] == self.alpha_window.shape[1]:  # every row: its own windows
+                return self
+            index = rows
+        elif self.rows is rows:  # the tick's rows, as the last tick's (the common case)
+            return self
+        elif np.array_equal(self.rows, rows):  # the same rows: kept as the tick's object
+            return Windows(self.alpha_window, self.B_window, self.count, rows)
+        else:
+            index = np.searchsorted(self.rows, rows)
+            if np.any(index >= self.rows.shape[0]) or not np.array_equal(self.rows[index], rows):
+                raise ContractError("DS's windows hold no state for some of the tick's rows")
+        a, b = self.alpha_window[:, index], self.B_window[:, index]
+        a.flags.writeable = b.flags.writeable = False
+        return Windows(a, b, self.count, rows)
 
 
 def initial_state(config: ArbitrationConfig, dims: int, M: int) -> Windows:
@@ -101,13 +129,14 @@ def initial_state(config: ArbitrationConfig, dims: int, M: int) -> Windows:
 
 
 def alpha(params: DSParams, q: Quantities, rows: Rows, state: Windows) -> Windows:
+    own = state.of_rows(rows)
     new_alpha, new_B = _windows_rows(
         q.P_robot, q.P_human, q.B, q.alpha,
-        _read_only(state.alpha_window), _read_only(state.B_window), state.count, rows,
+        _read_only(own.alpha_window), _read_only(own.B_window), own.count, rows,
         caps(params, q.alpha.shape[1]),
     )  # fmt: skip
     new_alpha.flags.writeable = new_B.flags.writeable = False
-    return Windows(new_alpha, new_B, state.count + 1)
+    return Windows(new_alpha, new_B, own.count + 1, own.rows)
 
 
 def _read_only(window: Array) -> Array:
@@ -124,30 +153,28 @@ def _windows_rows(
     P_r: Array, P_h: Array, B: Array, alpha: Array, alpha_window: Array, B_window: Array,
     count: int, rows: Rows, cap: Array,
 ) -> tuple[Array, Array]:  # fmt: skip
-    """Eq (8) on the windows for the batch rows `rows`: writes alpha (times its dimension's
-    `cap`, after the window) and the filtered B into their rows, returns the new windows
-    (other rows: their old ones, shifted)."""
-    W, M, D = B_window.shape
-    new_alpha, new_B = np.empty((W, M, D)), np.empty((W, M, D))
+    """Eq (8) on the windows for the batch rows `rows`, whose windows are the windows' rows
+    in order (row k of a window is batch row rows[k]): writes alpha (times its dimension's
+    `cap`, after the window) and the filtered B into their batch rows, returns the new
+    windows."""
+    W, n, D = B_window.shape
+    new_alpha, new_B = np.empty((W, n, D)), np.empty((W, n, D))
     new_alpha[: W - 1] = alpha_window[1:]
     new_B[: W - 1] = B_window[1:]
-    if rows.shape[0] != M:
-        new_alpha[W - 1] = alpha_window[W - 1]
-        new_B[W - 1] = B_window[W - 1]
     for k in range(rows.shape[0]):
         m = rows[k]
         for i in range(D):
-            B_f = B_window[1, m, i] if W > 1 else 0.0
+            B_f = B_window[1, k, i] if W > 1 else 0.0
             for w in range(2, W):
-                B_f += B_window[w, m, i]
+                B_f += B_window[w, k, i]
             B_f = (B_f + B[m, i]) / W if W > 1 else B[m, i] / W
             a_raw = ds_alpha_of(P_r[m, i], P_h[m, i], B_f)
-            a_sum = alpha_window[1, m, i] if W > 1 else 0.0
+            a_sum = alpha_window[1, k, i] if W > 1 else 0.0
             for w in range(2, W):
-                a_sum += alpha_window[w, m, i]
+                a_sum += alpha_window[w, k, i]
             a_sum = a_sum + a_raw if W > 1 else a_raw
-            new_B[W - 1, m, i] = B[m, i]
-            new_alpha[W - 1, m, i] = a_raw
+            new_B[W - 1, k, i] = B[m, i]
+            new_alpha[W - 1, k, i] = a_raw
             alpha[m, i] = cap[i] * (a_sum / min(count + 1, W))
             B[m, i] = B_f  # the filtered B is the one reported
     return new_alpha, new_B
