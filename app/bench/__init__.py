@@ -28,6 +28,7 @@ GROUPS: dict[str, str] = {
     "export": "dsteleop.app.bench.export:run",
     "link": "dsteleop.app.bench.link:run",
     "inference": "dsteleop.app.bench.inference:run",
+    "study": "dsteleop.app.bench.study:run",
 }
 
 
