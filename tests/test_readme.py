@@ -37,7 +37,18 @@ README = REPO / "README.md"
 BIN = Path(sys.executable).parent  # the virtualenv's bin, where `dsteleop` is installed
 MAX_BYTES = 12_000
 MAX_CELL = 200
-SUBCOMMANDS = ("serve", "run", "replay", "export", "robot-sim", "sim", "tune", "track", "bench")
+SUBCOMMANDS = (
+    "serve",
+    "run",
+    "replay",
+    "export",
+    "robot",
+    "robot-sim",
+    "sim",
+    "tune",
+    "track",
+    "bench",
+)
 
 
 def _text() -> str:
