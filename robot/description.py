@@ -26,6 +26,13 @@ The palm frame (docs/robot.md): origin where the fingers start (the palm's inner
 +z the approach direction (the way open fingers point), the fingers close along y. The task
 (`robot.task`) and the demo operator are written in this frame, so a new robot fits the
 kitchen task when its palm frame follows it.
+
+Why one module: it is the one definition of the description format. Its dataclasses, the
+range of every field (`RANGES`), the parser that reads the TOML into them and the check of
+every name and limit against the URDF walk the same fields in the same order; split, a new
+field would be added in three files and could be parsed but not checked. The reader of the
+URDF itself (`robot.urdf`), where the scene stands (`robot.placement`, `robot.reach`) and
+what a description's robot can do (`robot.check`) are modules of their own.
 """
 
 from __future__ import annotations
