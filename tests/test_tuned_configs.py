@@ -95,8 +95,8 @@ OBJECTS = TUNED / "objects"
 
 
 def test_the_objects_worlds_files_give_each_tuned_mode_its_own_configuration() -> None:
-    """docs/tuned/README.md, the objects world (the centre cell; the 4 cm cell's files were lost, 32
-    trials each): DSC, DS, conf_scalar and the scalar each run held out with what they tuned,
+    """docs/tuned/README.md, the objects world (the five cells of the axes design, 32 trials
+    each): DSC, DS, conf_scalar and the scalar each run held out with what they tuned,
     on the same people: the fields they share (kappa, p, q, b, window) from each mode's own
     section, the caps and levers from the merged arbitration."""
     from dsteleop.app.cli.sim import study_configuration
