@@ -472,17 +472,27 @@ def _halted(page: Page, what: str) -> None:
         st = _status(page)
         return st["stopped"] == "1" and float(st["cmdMps"]) == 0.0 and st["status"] == "stopped"
 
-    _wait(stopped, HUNG_S + 4.0 + 5.0, f"the robot stopped ({what})", page)
-    st = _status(page)
-    assert "ROBOT STOPPED" in page.locator(".dst-stop").inner_text()
-    assert page.get_by_role("button", name="Resume").is_enabled()
-    page.wait_for_timeout(1000)
-    ticks, palm = int(st["tick"]), _palm(page)
-    for _ in range(4):
-        page.wait_for_timeout(500)
+    for attempt in range(3):
+        _wait(stopped, HUNG_S + 4.0 + 5.0, f"the robot stopped ({what})", page)
         st = _status(page)
-        assert st["stopped"] == "1" and float(st["cmdMps"]) == 0.0, st
-        assert np.abs(np.subtract(_palm(page), palm)).max() < 5e-4, (what, palm, st)
+        assert "ROBOT STOPPED" in page.locator(".dst-stop").inner_text()
+        assert page.get_by_role("button", name="Resume").is_enabled()
+        page.wait_for_timeout(1000)
+        ticks, palm = int(st["tick"]), _palm(page)
+        for _ in range(4):
+            page.wait_for_timeout(500)
+            st = _status(page)
+            assert st["stopped"] == "1" and float(st["cmdMps"]) == 0.0, st
+            if st["status"] != "stopped":
+                # The trial ended while the arm was held: a utensil let go above the bin
+                # falls in by itself (CI, 2026-12-07: `finished`, success (in_bin)), and the
+                # next trial's reset puts the arm at home. The stop stays latched (above);
+                # the hold is judged again within the next trial.
+                break
+            assert np.abs(np.subtract(_palm(page), palm)).max() < 5e-4, (what, palm, st)
+        else:
+            break
+        assert attempt < 2, f"every trial ended while held ({what}): {st}"
     # The loop ticks on (2 s, at least held_rate_floor's pace): the stop is the halt, latched.
     assert int(st["tick"]) > ticks + 2.0 * held_rate_floor(30.0), (ticks, st["tick"])
 
