@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -38,7 +39,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dsteleop.arbitration import HandState
-from dsteleop.robot.arm import RobotConfig
+from dsteleop.robot.arm import BulletArmState, RobotConfig
 from dsteleop.robot.description import RobotDescription
 from dsteleop.robot.env import EnvConfig, KitchenEnv
 from dsteleop.robot.placement import Placement
@@ -284,6 +285,34 @@ def derived_values(desc: RobotDescription) -> dict[str, Any]:
     }
 
 
+def hold_still(
+    env: KitchenEnv,
+    goal: HandState,
+    how: str,
+    on_settled: Callable[[BulletArmState], None] | None = None,
+    seconds: float = STEADY_S,
+) -> list[float]:
+    """Reset `env` and drive its palm to the still `goal` for `seconds`: `how` "command"
+    sends the goal itself every tick (the arm's own tracking), "seek" the goal-seeking
+    policy's step from the achieved palm (as the loop does at alpha = 1). Returns the palm's
+    distance to the goal [m] at each tick of the last 0.5 s (the settled tail); `on_settled`
+    sees each of those ticks' state too."""
+    X = env.reset("spoon").palm
+    ticks = round(seconds / env.dt_s)
+    tail = max(1, round(0.5 / env.dt_s))
+    seen: list[float] = []
+    for k in range(ticks):
+        X_next = goal if how == "command" else goal_seeking_step(X, goal, env.dt_s)
+        env.set_target(X_next.position, X_next.rotation, X_next.openness)
+        state = env.step()
+        X = state.palm
+        if k >= ticks - tail:
+            seen.append(float(np.linalg.norm(X.position - goal.position)))
+            if on_settled is not None:
+                on_settled(state)
+    return seen
+
+
 def measure_steady(
     desc: RobotDescription,
     placement: Placement,
@@ -302,24 +331,18 @@ def measure_steady(
             out.append(Steady(name, math.nan, math.nan, False, tried=False))
             continue
         errors: dict[str, float] = {}
-        contact = False
+        touched: list[bool] = []  # each settled tick, of either way of holding
+
+        def note(state: BulletArmState, into: list[bool] = touched) -> None:
+            into.append(bool(state.contacts))
+
         for how in ("command", "seek"):
             cfg = EnvConfig(description=desc, placement=placement, robot=config or RobotConfig())
             with KitchenEnv(noise_free(cfg)) as env:
-                X = env.reset("spoon").palm
                 goal = HandState(p_goal, R_goal, np.ones(len(desc.fingers)))
-                ticks = round(STEADY_S / env.dt_s)
-                tail = max(1, round(0.5 / env.dt_s))
-                seen: list[float] = []
-                for k in range(ticks):
-                    X_next = goal if how == "command" else goal_seeking_step(X, goal, env.dt_s)
-                    env.set_target(X_next.position, X_next.rotation, X_next.openness)
-                    state = env.step()
-                    X = state.palm
-                    if k >= ticks - tail:
-                        seen.append(float(np.linalg.norm(X.position - p_goal)))
-                        contact = contact or bool(state.contacts)
+                seen = hold_still(env, goal, how, note)
                 errors[how] = float(np.mean(seen))
+        contact = any(touched)
         forced = (config or RobotConfig()).gravity_compensation
         gc = desc.gravity_compensation if forced is None else bool(forced)
         out.append(Steady(name, errors["command"], errors["seek"], contact, True, gc))

@@ -27,10 +27,11 @@ import numpy as np
 from dsteleop.arbitration import HandState
 from dsteleop.robot.arm import RobotConfig
 from dsteleop.robot.bullet import pb
+from dsteleop.robot.check import hold_still
 from dsteleop.robot.description import load_description, shipped_robots
 from dsteleop.robot.env import R_PALM_DOWN, EnvConfig, KitchenEnv
 from dsteleop.robot.reach import task_placement
-from dsteleop.robot.scripted import goal_seeking_step, noise_free
+from dsteleop.robot.scripted import noise_free
 from dsteleop.robot.world import BIN_CENTER_M, pocket_center_m
 
 #: Still goals, scene frame: 0.45 m above the table over each pocket (the iiwa hand's
@@ -47,29 +48,17 @@ def run(robot: str, goal_name: str, how: str, seconds: float, gc: bool) -> dict[
     cfg = EnvConfig(description=desc, robot=RobotConfig(gravity_compensation=gc))
     placement = task_placement(desc, cfg.robot)
     with KitchenEnv(noise_free(cfg)) as env:
-        state = env.reset("spoon")
         p_goal, R_goal = placement.pose(GOALS[goal_name], R_PALM_DOWN)
         goal = HandState(p_goal, R_goal, np.ones(len(desc.fingers)))
-        X = state.palm
-        ticks = round(seconds / env.dt_s)
-        tail = max(1, round(0.5 / env.dt_s))
-        errs: list[float] = []
         sags: list[float] = []
-        arm = [env.robot._r.joints[n].index for n in desc.arm_joints]
-        for k in range(ticks):
-            X_next = goal if how == "command" else goal_seeking_step(X, goal, env.dt_s)
-            env.set_target(X_next.position, X_next.rotation, X_next.openness)
-            state = env.step()
-            X = state.palm
-            if k >= ticks - tail:
-                errs.append(float(np.linalg.norm(X.position - goal.position)))
-                q = np.array(
-                    [
-                        s[0]
-                        for s in pb.getJointStates(env.robot.body, arm, physicsClientId=env.client)
-                    ]
-                )
-                sags.append(float(np.abs(env.robot._q_arm_cmd - q).max()))
+
+        def sag(_state: object) -> None:  # the arm exists once hold_still has reset the env
+            arm = [env.robot._r.joints[n].index for n in desc.arm_joints]
+            joints = pb.getJointStates(env.robot.body, arm, physicsClientId=env.client)
+            q = np.array([j[0] for j in joints])
+            sags.append(float(np.abs(env.robot._q_arm_cmd - q).max()))
+
+        errs = hold_still(env, goal, how, sag, seconds)
         return {"error_mm": 1e3 * float(np.mean(errs)), "sag_mrad": 1e3 * float(np.mean(sags))}
 
 
