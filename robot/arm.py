@@ -49,27 +49,31 @@ Grasping is contact and friction. Four rules keep it stable in a rigid-body simu
                     (or a `<mimic>` of one) stands short of its target, the target sent to
                     PyBullet's motor is wound further in by the shortfall over
                     `finger_integral_time_s` each second (unwound while the joint stands past its
-                    target; at most the squeeze: anti-windup), so the joint is driven to its target
-                    until the motor's force limit (the description's) stops it; a finger that lets
-                    go (its command opening past its joints) unwinds. Without it PyBullet's position
-                    motor (gain 0.3, 10 solver iterations) leaves a blocked finger short of its
-                    target, pressing with a few percent of its effort: measured on the xArm 6 (DS,
-                    seed 1, 2026-12-07), the drive 0.005-0.04 rad short of its command with at most
-                    0.03 of its 1.65 N m, its finger joints pushed 0.03-0.06 rad off the drive's
-                    angle (a rigid four-bar in the real gripper, separate motors here), 0.1-0.3 N on
-                    each pad, and the spoon slid out as the arm lifted; the Panda's jaws 1.7-3.3 N
-                    of their 70 N. A real gripper blocked short of its position target presses up to
-                    its force limit: Franka's `grasp(width, speed, force)` is force-controlled
-                    (libfranka), UFACTORY's gripper is a position servo rated 30 N (no force
-                    setting: xarm_ros2 issue 42). The press stays bounded by the stall's squeeze
-                    (the target is the command capped there) and by the pads' stiffness, and a
-                    command that stops at the contact presses with next to nothing, as a real
-                    position servo commanded to the object's own width would. Closed on the spoon's
-                    grip (goal-seeking, noise-free) at openness 0.24, 0.016 rad past the pads'
-                    contact, and held 1 s: the drive 0.007 rad short instead of 0.014 (its target
-                    wound 0.1 rad in), 2.6 N per pad instead of 0.4 N, and the spoon lifts with the
-                    palm (it stayed); the Panda at 0.26: 5.3-5.6 N per jaw instead of 2.9-3.1 N
-                    (tests/test_arms.py).
+                    target), so the joint is driven to its target until the motor's force limit (the
+                    description's) stops it; a finger that lets go (its command opening past its
+                    joints) unwinds. Anti-windup: the wound target is at most the squeeze past the
+                    target and never past the stall's limit, so a latched finger commanded closed
+                    past that limit (the hand closing on a grip) has no room to wind and squeezes as
+                    before; what the integral serves is a command that stops between the contact and
+                    the limit. (Wound up to the limit, the hand's fingers drove 0.3 rad into the
+                    spoon's grip and the UR5 dropped it in the goal-seeking run.) Without it
+                    PyBullet's position motor (gain 0.3, 10 solver iterations) leaves a blocked
+                    finger short of its target, pressing with a few percent of its effort: measured
+                    on the xArm 6 (DS, seed 1, 2026-12-07), the drive 0.005-0.04 rad short of its
+                    command with at most 0.03 of its 1.65 N m, its finger joints pushed 0.03-0.06
+                    rad off the drive's angle (a rigid four-bar in the real gripper, separate motors
+                    here), 0.1-0.3 N on each pad, and the spoon slid out as the arm lifted; the
+                    Panda's jaws 1.7-3.3 N of their 70 N. A real gripper blocked short of its
+                    position target presses up to its force limit: Franka's `grasp(width, speed,
+                    force)` is force-controlled (libfranka), UFACTORY's gripper is a position servo
+                    rated 30 N (no force setting: xarm_ros2 issue 42). A command that stops at the
+                    contact still presses with next to nothing, as a real position servo commanded
+                    to the object's own width would. Closed on the spoon's grip (goal-seeking,
+                    noise-free) at openness 0.24, 0.016 rad past the pads' contact, and held 1 s:
+                    the drive 0.007 rad short instead of 0.014 (its target wound 0.1 rad in), 2.6 N
+                    per pad instead of 0.4 N, and the spoon lifts with the palm (it stayed;
+                    tests/test_arms.py). The Panda at 0.26 is unchanged (3.1-3.3 N per jaw): its 2
+                    mm squeeze puts the stall's limit at its command, so there is no room to wind.
 "The thumb and an opposing finger" is, for any description, its `opposing` contact group
 and another (the Panda: the left jaw and the right jaw).
 `scripts/grasp_grid.py` measures it: it closes the hand at palm poses off the true grasp pose
@@ -472,7 +476,6 @@ class BulletArm:
         self._wind_m = np.zeros(len(self._mimic_idx))
         self._mimic_sense = self._sense[self._mimic_master] * np.sign(self._mimic_m)
         self._pressing = np.zeros(len(fjoints), dtype=bool)
-        self._mimic_squeeze = np.abs(self._mimic_m) * self._squeeze[self._mimic_master]
         self._t_s = 0.0
         self._openness_cmd = np.ones(len(desc.fingers))
         self._q_arm_cmd = self._q_rest.copy()
@@ -832,12 +835,17 @@ class BulletArm:
         # a finger that holds nothing keeps its wind-up but only unwinds (a contact that
         # flickers for a tick does not drop the press)
         short_f = np.where(latched, short_f, np.minimum(short_f, 0.0))
-        self._wind_f = np.clip(self._wind_f + k * short_f, 0.0, self._squeeze)
+        # anti-windup: at most the squeeze past the target, and never past the stall's limit
+        # (a latched finger whose command closes past that limit has no room to wind)
+        room = self._sense * (self._stall_q + self._sense * self._squeeze - q_f)
+        room = np.clip(np.where(np.isnan(room), self._squeeze, room), 0.0, self._squeeze)
+        self._wind_f = np.clip(self._wind_f + k * short_f, 0.0, room)
         if self._mimic_idx:
             q_m = self._mimic_q(np.clip(q_f, self._finger_lo, self._finger_hi))
             short_m = self._mimic_sense * (q_m - q[n:])
             short_m = np.where(latched[self._mimic_master], short_m, np.minimum(short_m, 0.0))
-            self._wind_m = np.clip(self._wind_m + k * short_m, 0.0, self._mimic_squeeze)
+            room_m = np.abs(self._mimic_m) * room[self._mimic_master]
+            self._wind_m = np.clip(self._wind_m + k * short_m, 0.0, room_m)
         self._apply_fingers()
 
     def _update_helper(self) -> None:
