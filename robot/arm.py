@@ -50,8 +50,10 @@ Grasping is contact and friction. Four rules keep it stable in a rigid-body simu
                     PyBullet's motor is wound further in by the shortfall over
                     `finger_integral_time_s` each second (unwound while the joint stands past its
                     target), so the joint is driven to its target until the motor's force limit (the
-                    description's) stops it; a finger that lets go (its command opening past its
-                    joints) unwinds. Anti-windup: the wound target is at most the squeeze past the
+                    description's) stops it; a finger whose target opens past its joints by more
+                    than `stall_lead_share` of its travel lets go: its wind-up is dropped at once
+                    (wound down gradually, the iiwa's hand held the ladle on while opening and flung
+                    it off the table). Anti-windup: the wound target is at most the squeeze past the
                     target and never past the stall's limit, so a latched finger commanded closed
                     past that limit (the hand closing on a grip) has no room to wind and squeezes as
                     before; what the integral serves is a command that stops between the contact and
@@ -839,6 +841,9 @@ class BulletArm:
         # (a latched finger whose command closes past that limit has no room to wind)
         room = self._sense * (self._stall_q + self._sense * self._squeeze - q_f)
         room = np.clip(np.where(np.isnan(room), self._squeeze, room), 0.0, self._squeeze)
+        # a finger whose target opens past its joints by more than the stall's lead lets
+        # go: its wind-up is dropped at once (winding down, it held the body a while longer)
+        room = np.where(short_f < -self.config.stall_lead_share * self._travel, 0.0, room)
         self._wind_f = np.clip(self._wind_f + k * short_f, 0.0, room)
         if self._mimic_idx:
             q_m = self._mimic_q(np.clip(q_f, self._finger_lo, self._finger_hi))
