@@ -82,7 +82,8 @@ and another (the Panda: the left jaw and the right jaw).
 and carries the utensil to the bin at the loop's limits. With rigid pads and a stall at the
 first touch, 34/37 of the spoon's single-axis offsets (0.5-2 cm, 0.05-0.1 rad) and 35/40 of
 its goal-noise offsets held; with the rules above 37/37 and 36/40 (the four misses are 2.2-2.6
-cm off), spatula 34/37 -> 37/37, ladle 35/37 -> 36/37.
+cm off), spatula 34/37 -> 37/37, ladle 35/37 -> 36/37 (measured before the servo integral;
+not re-measured with it).
 An optional grasp helper (`grasp_helper=True`, off by default) adds a fixed constraint
 between palm and object, created only when the thumb and at least one other finger whose
 commands are closed (openness <= `helper_openness`) touch the same graspable body, and
@@ -101,11 +102,11 @@ that sag: 3-8 mm short at K_r = 2 /s (docs/robot.md, `scripts/steady_state.py`);
 
 Quaternions cross this boundary as rotation matrices; PyBullet's xyzw stays inside.
 
-Why one module: the control tick, the grasp rules above (soft pads, the stall latch, the
-helper constraint) and the gravity compensation all act on one PyBullet body each tick,
-through the same joint indices, finger tables and contact reads that `BulletArm` builds from
-a description; split apart, each piece would reach into the others' state. Over a quarter of
-the lines are these explanations; the arm's configuration (`RobotConfig`, `Workspace`) could
+Why one module: the control tick, the grasp rules above (soft pads, the stall latch, the servo
+integral, the helper constraint) and the gravity compensation all act on one PyBullet body each
+tick, through the same joint indices, finger tables and contact reads that `BulletArm` builds
+from a description; split apart, each piece would reach into the others' state. Over a quarter
+of the lines are these explanations; the arm's configuration (`RobotConfig`, `Workspace`) could
 move out (~150 lines) and is kept beside the body it configures.
 """
 
