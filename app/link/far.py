@@ -73,7 +73,6 @@ class FarEnd:
 
     def __init__(self, config: LinkConfig, utensil: str = "spoon") -> None:
         from dsteleop.app.plants.simulated import SimulatedRobot
-
         from dsteleop.robot.reach import require_reachable
 
         self.config, desc = config.for_robot()
