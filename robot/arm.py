@@ -22,7 +22,7 @@ which is what a closed-loop integrator X_next = integrate(X_current, U, dt) need
 measured value, a hand that stopped moving would command "as open as it is now" and let
 go). The measured openness is `BulletArmState.openness_measured`.
 
-Grasping is contact and friction. Three rules keep it stable in a rigid-body simulator:
+Grasping is contact and friction. Four rules keep it stable in a rigid-body simulator:
     soft pads       the finger links touch like rubber fingertip pads: a spring-damper
                     contact (`pad_stiffness_n_per_m`, `pad_damping_n_s_per_m`) instead of a
                     rigid one. With rigid pads, PyBullet's iterative solver (10 iterations)
@@ -44,13 +44,46 @@ Grasping is contact and friction. Three rules keep it stable in a rigid-body sim
                     next to no force.) The latch frees when the command opens past it.
     thumb effort    the thumb is as strong as the three fingers it opposes together (each
                     finger's effort is in the description).
+    servo integral  a finger that holds a body (latched, or touching one that two groups clamp) has
+                    a servo with integral action, as a real gripper's has: while one of its joints
+                    (or a `<mimic>` of one) stands short of its target, the target sent to
+                    PyBullet's motor is wound further in by the shortfall over
+                    `finger_integral_time_s` each second (unwound while the joint stands past its
+                    target), so the joint is driven to its target until the motor's force limit (the
+                    description's) stops it; a finger whose target opens past its joints by more
+                    than `stall_lead_share` of its travel lets go: its wind-up is dropped at once
+                    (wound down gradually, the iiwa's hand held the ladle on while opening and flung
+                    it off the table). Anti-windup: the wound target is at most the squeeze past the
+                    target and never past the stall's limit, so a latched finger commanded closed
+                    past that limit (the hand closing on a grip) has no room to wind and squeezes as
+                    before; what the integral serves is a command that stops between the contact and
+                    the limit. (Wound up to the limit, the hand's fingers drove 0.3 rad into the
+                    spoon's grip and the UR5 dropped it in the goal-seeking run.) Without it
+                    PyBullet's position motor (gain 0.3, 10 solver iterations) leaves a blocked
+                    finger short of its target, pressing with a few percent of its effort: measured
+                    on the xArm 6 (DS, seed 1, 2026-12-07), the drive 0.005-0.04 rad short of its
+                    command with at most 0.03 of its 1.65 N m, its finger joints pushed 0.03-0.06
+                    rad off the drive's angle (a rigid four-bar in the real gripper, separate motors
+                    here), 0.1-0.3 N on each pad, and the spoon slid out as the arm lifted; the
+                    Panda's jaws 1.7-3.3 N of their 70 N. A real gripper blocked short of its
+                    position target presses up to its force limit: Franka's `grasp(width, speed,
+                    force)` is force-controlled (libfranka), UFACTORY's gripper is a position servo
+                    rated 30 N (no force setting: xarm_ros2 issue 42). A command that stops at the
+                    contact still presses with next to nothing, as a real position servo commanded
+                    to the object's own width would. Closed on the spoon's grip (goal-seeking,
+                    noise-free) at openness 0.24, 0.016 rad past the pads' contact, and held 1 s:
+                    the drive 0.007 rad short instead of 0.014 (its target wound 0.1 rad in), 2.6 N
+                    per pad instead of 0.4 N, and the spoon lifts with the palm (it stayed;
+                    tests/test_arms.py). The Panda at 0.26 is unchanged (3.1-3.3 N per jaw): its 2
+                    mm squeeze puts the stall's limit at its command, so there is no room to wind.
 "The thumb and an opposing finger" is, for any description, its `opposing` contact group
 and another (the Panda: the left jaw and the right jaw).
 `scripts/grasp_grid.py` measures it: it closes the hand at palm poses off the true grasp pose
 and carries the utensil to the bin at the loop's limits. With rigid pads and a stall at the
 first touch, 34/37 of the spoon's single-axis offsets (0.5-2 cm, 0.05-0.1 rad) and 35/40 of
 its goal-noise offsets held; with the rules above 37/37 and 36/40 (the four misses are 2.2-2.6
-cm off), spatula 34/37 -> 37/37, ladle 35/37 -> 36/37.
+cm off), spatula 34/37 -> 37/37, ladle 35/37 -> 36/37 (measured before the servo integral;
+not re-measured with it).
 An optional grasp helper (`grasp_helper=True`, off by default) adds a fixed constraint
 between palm and object, created only when the thumb and at least one other finger whose
 commands are closed (openness <= `helper_openness`) touch the same graspable body, and
@@ -69,11 +102,11 @@ that sag: 3-8 mm short at K_r = 2 /s (docs/robot.md, `scripts/steady_state.py`);
 
 Quaternions cross this boundary as rotation matrices; PyBullet's xyzw stays inside.
 
-Why one module: the control tick, the grasp rules above (soft pads, the stall latch, the
-helper constraint) and the gravity compensation all act on one PyBullet body each tick,
-through the same joint indices, finger tables and contact reads that `BulletArm` builds from
-a description; split apart, each piece would reach into the others' state. Over a quarter of
-the lines are these explanations; the arm's configuration (`RobotConfig`, `Workspace`) could
+Why one module: the control tick, the grasp rules above (soft pads, the stall latch, the servo
+integral, the helper constraint) and the gravity compensation all act on one PyBullet body each
+tick, through the same joint indices, finger tables and contact reads that `BulletArm` builds
+from a description; split apart, each piece would reach into the others' state. Over a quarter
+of the lines are these explanations; the arm's configuration (`RobotConfig`, `Workspace`) could
 move out (~150 lines) and is kept beside the body it configures.
 """
 
@@ -163,6 +196,10 @@ class RobotConfig:
             joint's open-to-closed travel past the positions where it met it (module
             docstring: contact stall; the iiwa hand's joints travel 1 rad: 0.3 rad), unless
             its description gives its own (the Panda's gripper).
+        finger_integral_time_s: the integral time of a latched finger's servo (module
+            docstring: servo integral) [s]: the motor's target moves in by the joint's
+            shortfall over this each second (a modelling constant, not the maker's: neither
+            UFACTORY nor Franka publish their servo's; 0.1 s is three ticks at 30 Hz).
         stall_lead_share: a finger counts as closing (for the contact stall) when its
             command is this share of the travel more closed than its joints; a contact can
             push an open finger against its open stop by a hundredth of its travel, which
@@ -202,6 +239,7 @@ class RobotConfig:
     helper_openness: float = 0.5
     helper_max_force_n: float = 40.0
     squeeze_share: float = 0.3
+    finger_integral_time_s: float = 0.1
     stall_lead_share: float = 0.02
     pad_stiffness_n_per_m: float = 1.0e4
     pad_damping_n_s_per_m: float = 30.0
@@ -239,6 +277,7 @@ class RobotConfig:
             "helper_openness",
             "helper_max_force_n",
             "squeeze_share",
+            "finger_integral_time_s",
             "stall_lead_share",
             "pad_stiffness_n_per_m",
             "pad_damping_n_s_per_m",
@@ -434,6 +473,12 @@ class BulletArm:
         )
         self._sense = np.sign(self._q_closed - self._q_open)  # +1 where closing raises q
         self._stall_q = np.full(len(fjoints), np.nan)  # per finger joint, NaN = free
+        #: servo integral (module docstring): how far each finger joint's and each mimic
+        #: joint's motor target is wound past its target, in the closing sense [rad or m]
+        self._wind_f = np.zeros(len(fjoints))
+        self._wind_m = np.zeros(len(self._mimic_idx))
+        self._mimic_sense = self._sense[self._mimic_master] * np.sign(self._mimic_m)
+        self._pressing = np.zeros(len(fjoints), dtype=bool)
         self._t_s = 0.0
         self._openness_cmd = np.ones(len(desc.fingers))
         self._q_arm_cmd = self._q_rest.copy()
@@ -538,6 +583,9 @@ class BulletArm:
         self._state_cache = None
         self.release()
         self._stall_q[:] = np.nan
+        self._wind_f[:] = 0.0
+        self._wind_m[:] = 0.0
+        self._pressing[:] = False
         self._stall_ticks = 0
         self._stalled = False
         self._stall_said = False
@@ -579,17 +627,28 @@ class BulletArm:
         )
         self._apply_fingers()
 
-    def _apply_fingers(self) -> None:
+    def _finger_targets(self) -> Array:
+        """The finger joints' targets: the command, capped by the contact stall."""
         q_f = self._finger_q(self._openness_cmd)
         # Contact stall: a finger stops where it met the object (plus a squeeze) instead of
         # driving its pad into it; NaN entries (free fingers) leave the command as it is.
         limit = self._stall_q + self._sense * self._squeeze
-        q_f = np.where(self._sense * (q_f - limit) > 0.0, limit, q_f)
-        self._command_fingers(q_f)
+        return np.where(self._sense * (q_f - limit) > 0.0, limit, q_f)
 
-    def _command_fingers(self, q_f: Array) -> None:
+    def _apply_fingers(self) -> None:
+        self._command_fingers(self._finger_targets(), self._wind_f, self._wind_m)
+
+    def _command_fingers(
+        self, q_f: Array, wind_f: Array | None = None, wind_m: Array | None = None
+    ) -> None:
         """Position targets for the finger joints (within their URDF limits) and, from
-        them, for their mimic joints."""
+        them, for their mimic joints; each motor's wound past its target by `wind_f` /
+        `wind_m` in the closing sense (module docstring: servo integral)."""
+        q_m = self._mimic_q(np.clip(q_f, self._finger_lo, self._finger_hi))
+        if wind_m is not None:
+            q_m = np.clip(q_m + self._mimic_sense * wind_m, self._mimic_lo, self._mimic_hi)
+        if wind_f is not None:
+            q_f = q_f + self._sense * wind_f
         q_f = np.clip(q_f, self._finger_lo, self._finger_hi)
         pb.setJointMotorControlArray(
             self._body,
@@ -605,7 +664,7 @@ class BulletArm:
                 self._body,
                 self._mimic_idx,
                 pb.POSITION_CONTROL,
-                targetPositions=self._mimic_q(q_f).tolist(),
+                targetPositions=q_m.tolist(),
                 forces=self._mimic_forces,
                 positionGains=self._mimic_gains,
                 physicsClientId=self._c,
@@ -694,6 +753,7 @@ class BulletArm:
         self._t_s += self.config.control_dt_s
         self._contacts = self._read_contacts()
         self._update_stall()
+        self._update_wind()
         if self.config.grasp_helper:
             self._update_helper()
 
@@ -736,6 +796,8 @@ class BulletArm:
             if self.clamps(groups):
                 for grp in groups:
                     clamped |= self._group_fingers.get(grp, set())
+        #: per finger joint: its finger touches a clamped body (module docstring: servo integral)
+        self._pressing = np.isin(self._joint_finger, [self._finger_names.index(f) for f in clamped])
         q_cmd = self._finger_q(self._openness_cmd)
         changed = False
         states: list[tuple[float, ...]] | None = None
@@ -758,6 +820,39 @@ class BulletArm:
                     changed = True
         if changed:
             self._apply_fingers()
+
+    def _update_wind(self) -> None:
+        """Wind each holding finger's motor targets in by its joints' shortfall, unwind any
+        finger's past its target (module docstring: servo integral)."""
+        latched = ~np.isnan(self._stall_q) | self._pressing
+        if not latched.any() and not self._wind_f.any() and not self._wind_m.any():
+            return
+        q_f = self._finger_targets()
+        states = pb.getJointStates(
+            self._body, self._finger_idx + self._mimic_idx, physicsClientId=self._c
+        )
+        q = np.array([s[0] for s in states])
+        n = len(self._finger_idx)
+        k = self.config.control_dt_s / self.config.finger_integral_time_s
+        short_f = self._sense * (np.clip(q_f, self._finger_lo, self._finger_hi) - q[:n])
+        # a finger that holds nothing keeps its wind-up but only unwinds (a contact that
+        # flickers for a tick does not drop the press)
+        short_f = np.where(latched, short_f, np.minimum(short_f, 0.0))
+        # anti-windup: at most the squeeze past the target, and never past the stall's limit
+        # (a latched finger whose command closes past that limit has no room to wind)
+        room = self._sense * (self._stall_q + self._sense * self._squeeze - q_f)
+        room = np.clip(np.where(np.isnan(room), self._squeeze, room), 0.0, self._squeeze)
+        # a finger whose target opens past its joints by more than the stall's lead lets
+        # go: its wind-up is dropped at once (winding down, it held the body a while longer)
+        room = np.where(short_f < -self.config.stall_lead_share * self._travel, 0.0, room)
+        self._wind_f = np.clip(self._wind_f + k * short_f, 0.0, room)
+        if self._mimic_idx:
+            q_m = self._mimic_q(np.clip(q_f, self._finger_lo, self._finger_hi))
+            short_m = self._mimic_sense * (q_m - q[n:])
+            short_m = np.where(latched[self._mimic_master], short_m, np.minimum(short_m, 0.0))
+            room_m = np.abs(self._mimic_m) * room[self._mimic_master]
+            self._wind_m = np.clip(self._wind_m + k * short_m, 0.0, room_m)
+        self._apply_fingers()
 
     def _update_helper(self) -> None:
         closed = self.closed_groups(self.config.helper_openness)

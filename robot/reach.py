@@ -16,6 +16,11 @@ moved towards or away from the base and down or up, smallest moves first, yaw 0)
 pose is reachable with room to spare: also `SEARCH_MARGIN_M` off along each base axis (the
 robot's goal noise and a person's misses); else the shipped layout, which `problems` then
 reports and `require_reachable` refuses (one line naming the pose, the error and the fix).
+The search moves the scene along x and z only: the kitchen is symmetric about the base's x
+axis (holder at y = +0.26 m, bin at -0.26 m), so a move along y brings one end nearer and
+takes the other as far away, and a yaw turns every pose about the base's first joint axis,
+which leaves each one's distance from the shoulder as it was. A robot whose first joint
+cannot turn to one side, or stands beside the table, says where with `[task]`.
 """
 
 from __future__ import annotations

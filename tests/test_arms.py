@@ -141,6 +141,47 @@ def test_the_xarm_gripper_closes_on_the_grip_with_its_linkage_following() -> Non
         assert {"left_finger", "right_finger"} <= touching, touching
 
 
+@pytest.mark.slow
+def test_the_xarm_gripper_holds_the_spoon_commanded_just_past_the_pads_contact() -> None:
+    """The goal-seeking run to the spoon's grasp with the openness stopped at 0.24 (the drive's
+    command 0.646 rad, 0.016 rad past where the pads meet the 24 mm grip, about 0.63 rad), held
+    1 s, then the palm lifted 10 cm: each pad presses the grip with over 1.5 N and the spoon
+    comes up with it. Without the finger servo's integral (robot/arm.py, servo integral) the
+    drive stood 0.014 rad short of its command, the pads pressed 0.4 N and the spoon stayed."""
+    import numpy as np
+
+    from dsteleop.robot.env import EnvConfig, KitchenEnv
+    from dsteleop.robot.scripted import goal_seeking_step, noise_free
+
+    g = np.array([0.24])
+    with KitchenEnv(noise_free(EnvConfig(description=load_description("xarm6")))) as env:
+        state = env.reset("spoon")
+        X, task = state.palm, env.task
+        for _ in range(round(10.0 / env.dt_s)):
+            X_next = goal_seeking_step(X, task.goal, env.dt_s)
+            env.set_target(X_next.position, X_next.rotation, np.maximum(X_next.openness, g))
+            X = env.step().palm
+            if X_next.openness[0] <= g[0]:
+                break
+        else:
+            pytest.fail("the goal-seeking run did not close to 0.24 within 10 s")
+        p0, R = X.position.copy(), X.rotation.copy()
+        spoon = env.world.utensils["spoon"]
+        for _ in range(round(1.0 / env.dt_s)):
+            env.set_target(p0, R, g)
+            state = env.step()
+        press = {"left_finger": 0.0, "right_finger": 0.0}
+        for c in state.contacts:
+            if c.other_body == spoon and c.robot_link in press:
+                press[c.robot_link] += c.normal_force_n
+        assert min(press.values()) > 1.5, press
+        z0 = env.utensil_pose("spoon")[0][2]
+        for k in range(round(2.0 / env.dt_s)):
+            env.set_target(p0 + np.array([0.0, 0.0, 0.10 * min(1.0, (k + 1) / 45)]), R, g)
+            env.step()
+        assert env.utensil_pose("spoon")[0][2] - z0 > 0.08
+
+
 def test_the_so101_is_refused_for_the_kitchen_task() -> None:
     """The SO-101 loads (its URDF read as shipped, the jaw against the fixed jaw's group), but
     the kitchen's poses are out of its reach wherever the scene is moved: one line naming the

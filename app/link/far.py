@@ -67,13 +67,18 @@ class FarEnd:
         utensil: the utensil in the arm's world (the scene in front of it).
 
     Raises:
-        InputError: the session cannot be opened, or the robot's description does not load.
+        InputError: the session cannot be opened, the robot's description does not load,
+            or its arm cannot reach a pose of the task (`robot.reach.require_reachable`).
     """
 
     def __init__(self, config: LinkConfig, utensil: str = "spoon") -> None:
         from dsteleop.app.plants.simulated import SimulatedRobot
+        from dsteleop.robot.reach import require_reachable
 
         self.config, desc = config.for_robot()
+        # As `run` refuses it at the near end: an arm that cannot reach the task where its
+        # scene stands is refused before the session opens (one line: the pose, the fix).
+        require_reachable(desc)
         d, t = self.config.domain_id, self.config.topics
         # The session first: a bad endpoint fails before the simulation is built.
         self._session = open_session(self.config.far, self.config.connect_timeout_s, "far end")
