@@ -733,7 +733,7 @@ def test_the_mode_control_says_why_ds_is_the_default() -> None:
         assert mode is viewer._mode and mode.value == "DS" and "DSC" in options
         assert mode.hint == MODE_HINT
         assert MODE_HINT.startswith("DS is the default")
-        assert "docs/operator.md" in MODE_HINT and "p = 0.38" in MODE_HINT
+        assert "docs/operator.md" in MODE_HINT and "p = 0.15" in MODE_HINT
         # The figures it gives are the ones of the table it names.
         doc = (REPO / "docs" / "operator.md").read_text(encoding="utf-8")
         section = doc.split("## The demo with inferred goals\n", 1)[1].split("\n## ", 1)[0]
