@@ -752,8 +752,9 @@ class BulletArm:
             pb.stepSimulation(physicsClientId=self._c)
         self._t_s += self.config.control_dt_s
         self._contacts = self._read_contacts()
-        self._update_stall()
-        self._update_wind()
+        changed = self._update_stall()
+        if self._update_wind() or changed:  # the fingers' motors told once, after both
+            self._apply_fingers()
         if self.config.grasp_helper:
             self._update_helper()
 
@@ -785,10 +786,11 @@ class BulletArm:
         }
         return {grp for grp, fs in self._group_fingers.items() if fs & closed}
 
-    def _update_stall(self) -> None:
+    def _update_stall(self) -> bool:
         """Latch each finger's joint positions when it touches a graspable body that the
         opposing group and another clamp, while closing; free it when its command opens past
-        that point (module docstring: contact stall)."""
+        that point (module docstring: contact stall). Returns whether a latch changed (the
+        fingers' motors then need their targets again)."""
         clamped: set[str] = set()  # fingers touching a body clamped between two groups
         for body in self._graspable:
             # a body between the opposing fingers and the palm (or the arm) is clamped too
@@ -818,15 +820,15 @@ class BulletArm:
                 if (lead > self.config.stall_lead_share * self._travel[sl]).any():  # closing
                     self._stall_q[sl] = q_now
                     changed = True
-        if changed:
-            self._apply_fingers()
+        return changed
 
-    def _update_wind(self) -> None:
+    def _update_wind(self) -> bool:
         """Wind each holding finger's motor targets in by its joints' shortfall, unwind any
-        finger's past its target (module docstring: servo integral)."""
+        finger's past its target (module docstring: servo integral). Returns whether it did
+        (the fingers' motors then need their targets again)."""
         latched = ~np.isnan(self._stall_q) | self._pressing
         if not latched.any() and not self._wind_f.any() and not self._wind_m.any():
-            return
+            return False
         q_f = self._finger_targets()
         states = pb.getJointStates(
             self._body, self._finger_idx + self._mimic_idx, physicsClientId=self._c
@@ -852,7 +854,7 @@ class BulletArm:
             short_m = np.where(latched[self._mimic_master], short_m, np.minimum(short_m, 0.0))
             room_m = np.abs(self._mimic_m) * room[self._mimic_master]
             self._wind_m = np.clip(self._wind_m + k * short_m, 0.0, room_m)
-        self._apply_fingers()
+        return True
 
     def _update_helper(self) -> None:
         closed = self.closed_groups(self.config.helper_openness)

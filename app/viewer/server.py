@@ -361,7 +361,7 @@ class Viewer:
         gui = self.server.gui
         gui.configure_theme(control_width="large", dark_mode=False, show_logo=False)
         # from behind the base's left, looking at the table where the scene stands
-        fx, fy, fz = (0.55, 0.0, 0.1) if self._geometry is None else self._geometry.focus_m
+        fx, fy, fz = (self._geometry or SceneGeometry).focus_m  # the class's: its default
         self.server.initial_camera.position = (fx - 1.3, fy - 1.25, fz + 0.9)
         self.server.initial_camera.look_at = (fx, fy, fz)
         self.scene = SceneView(self.server.scene, self._geometry, self.config.trail_points)
