@@ -198,18 +198,30 @@ class GoalBelief:
         scale.flags.writeable = False
         object.__setattr__(self, "_scale", scale)
         object.__setattr__(self, "_prior", prior)
-        object.__setattr__(self, "_goals", goals)  # batch (rows, K)
-        # The goals as the compiled cost takes them: (rows K, ...) C-contiguous rows.
+        table = _agreement(goals, sigma, scale)
+        self._derive_rows(
+            goals,
+            {
+                "_sigma2_over_s2_sum": ((sigma / scale) ** 2).sum(-1),
+                "_table": table,
+                "_joint_table": table.prod(axis=3),
+            },
+        )
+
+    def _derive_rows(self, goals: HandState, tables: dict[str, Array]) -> None:
+        """Set what is held per row: the goals (batch (rows, K)), the same goals as the
+        compiled cost takes them ((rows K, ...) C-contiguous), and `tables`, each with the
+        row as its first axis (`take` selects the rows of every one of them)."""
+        object.__setattr__(self, "_goals", goals)
         flat = tuple(
-            np.ascontiguousarray(a.reshape(rows * K, *a.shape[2:]), dtype=np.float64)
+            np.ascontiguousarray(a.reshape(a.shape[0] * a.shape[1], *a.shape[2:]), dtype=np.float64)
             for a in (goals.position, goals.rotation, goals.openness)
         )
         object.__setattr__(self, "_flat_goals", flat)
-        extra = np.ascontiguousarray(((sigma / self.scale) ** 2).sum(-1))
-        object.__setattr__(self, "_sigma2_over_s2_sum", extra)
-        table = np.ascontiguousarray(_agreement(goals, sigma, self.scale))
-        object.__setattr__(self, "_table", table)
-        object.__setattr__(self, "_joint_table", np.ascontiguousarray(table.prod(axis=3)))
+        tables = {name: np.ascontiguousarray(value) for name, value in tables.items()}
+        object.__setattr__(self, "_row_tables", tables)
+        for name, value in tables.items():
+            object.__setattr__(self, name, value)
 
     @property
     def K(self) -> int:
@@ -300,24 +312,13 @@ class GoalBelief:
             "params": self.params,
             "prior": prior,
             "names": self.names,
-        }
-        K = self.K
-        gp, gR, gg = d["_flat_goals"]
-        n = gp.shape[0] // K
-        picked = (a.reshape(n, K, *a.shape[1:])[rows] for a in (gp, gR, gg))
-        flat = tuple(np.ascontiguousarray(a.reshape(a.shape[0] * K, *a.shape[2:])) for a in picked)
-        own_prior = d["_prior"]
-        derived = {
             "_scale": d["_scale"],
-            "_prior": own_prior[rows] if own_prior.ndim == 2 else own_prior,
-            "_goals": d["_goals"].take(rows),
-            "_flat_goals": flat,
-            "_sigma2_over_s2_sum": np.ascontiguousarray(d["_sigma2_over_s2_sum"][rows]),
-            "_table": np.ascontiguousarray(d["_table"][rows]),
-            "_joint_table": np.ascontiguousarray(d["_joint_table"][rows]),
+            "_prior": d["_prior"][rows] if d["_prior"].ndim == 2 else d["_prior"],
         }
-        for name, value in {**fields, **derived}.items():
+        for name, value in fields.items():
             object.__setattr__(out, name, value)
+        tables: dict[str, Array] = d["_row_tables"]
+        out._derive_rows(d["_goals"].take(rows), {k: v[rows] for k, v in tables.items()})
         return out
 
 

@@ -206,6 +206,11 @@ def test_the_model_of_some_rows_is_the_model_built_on_those_rows() -> None:
         np.testing.assert_array_equal(G1.position, G2.position)
         np.testing.assert_array_equal(G1.rotation, G2.rotation)
         np.testing.assert_array_equal(G1.openness, G2.openness)
+    # Every row's trial ended (the study's last step): a model of no rows, which still answers.
+    none = model.take(np.zeros(n, dtype=bool))
+    assert none.agreement.shape == (0, K, K, D)
+    X_none = HandState(np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, F)))
+    assert none.cost_to_go(X_none).shape == (0, K)
     with pytest.raises(ConfigError, match="one set per row"):
         _belief().take(np.array([True]))
 
